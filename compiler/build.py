@@ -1,0 +1,200 @@
+"""``craftc build``: the compiler's passes, in the order they run.
+
+    read vocabularies -> source knowledge (LLM stages / ConceptNet / direct baseline, cache-first)
+    -> overrides -> graph checks -> affordance energy -> embeddings -> emit bundle
+
+Each pass counts what it read, kept and dropped (``report.json``). The same inputs give a
+byte-identical bundle; volatile facts go to ``build_info.json`` outside the content hash.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import platform
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+from safetensors.numpy import save as save_safetensors
+
+from craft_e import __version__
+from craft_e.compiler.cache import RecordCache
+from craft_e.compiler.draft import KnowledgeDraft
+from craft_e.compiler.embed import EmbeddingCache
+from craft_e.compiler.emit import file_digest, write_bundle
+from craft_e.compiler.graph import build_graph, check_draft, coverage, graph_json, weight_matrices
+from craft_e.compiler.llm_knowledge import direct_llm_draft, llm_property_draft
+from craft_e.compiler.rdf import graph_turtle
+from craft_e.compiler.sources.llm import LLMSource, Transport
+from craft_e.compiler.vocab import Vocabulary, read_vocabulary
+from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256, MINILM_DIM
+from craft_e.runtime.energies import EnergyForm, affordance_energy_matrix
+from craft_e.schemas.v1.bundle import (
+    BundleReport,
+    BuildInfo,
+    EnergyInfo,
+    Manifest,
+    TextEncoderInfo,
+    content_hash,
+)
+
+KnowledgeMode = Literal["llm", "conceptnet", "direct"]
+VERB_TEMPLATE = "something to {verb}"
+FORBIDDEN_ENERGY = 1.0  # "never pick X for V": the worst possible E_aff
+
+
+class BuildConfig(BaseModel):
+    """Everything a build depends on (resolved once from the CLI, then passed in)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    verbs_file: Path
+    objects_file: Path
+    out: Path
+    name: str
+    kb_version: str = "1.0.0"
+    mode: KnowledgeMode = "llm"
+    provider: str = "curated"
+    model: str = "craft-e-curators"
+    cache_root: Path
+    overrides_file: Path | None = None
+    conceptnet: str = "omcs"
+    tau: float = 0.5
+    energy_form: EnergyForm = "sum-tanh"
+    encoder_id: str = MINILM_ID
+
+
+@dataclass
+class BuildResult:
+    out: Path
+    manifest: Manifest
+    report: BundleReport
+    notes: list[str]
+    embedding_hits: int
+    embedding_misses: int
+    duration_s: float
+
+
+Progress = Callable[[str, int], None]
+
+
+def _source_pass(
+    config: BuildConfig, verbs: Vocabulary, objects: Vocabulary, cache: RecordCache,
+    transport: Transport | None, progress: Progress | None,
+) -> KnowledgeDraft:
+    if config.mode == "conceptnet":
+        from craft_e.compiler.sources.conceptnet import conceptnet_draft
+
+        return conceptnet_draft(verbs.names, objects.names, config.conceptnet, cache, progress)
+    source = LLMSource(cache=cache, provider=config.provider, model=config.model, transport=transport)
+    if config.mode == "direct":
+        return direct_llm_draft(source, verbs.names, objects.names, progress)
+    return llm_property_draft(source, verbs.names, objects.names, progress)
+
+
+def _overrides_pass(config: BuildConfig, draft: KnowledgeDraft) -> None:
+    if config.overrides_file is not None:
+        from craft_e.compiler.sources.overrides import apply_overrides
+
+        apply_overrides(draft, config.overrides_file)
+
+
+def _embeddings(
+    config: BuildConfig, draft: KnowledgeDraft, properties: list[str], progress: Progress | None
+) -> tuple[bytes, EmbeddingCache]:
+    cache = EmbeddingCache(config.cache_root / "embeddings", config.encoder_id)
+    tick = (lambda n: progress("embeddings", n)) if progress else None
+    tensors = {
+        "verb": cache.embed(draft.verbs, tick),  # [V, d]
+        "verb_query": cache.embed([VERB_TEMPLATE.format(verb=v) for v in draft.verbs], tick),
+        "object": cache.embed(draft.objects, tick),  # [O, d]
+        "property": cache.embed(properties, tick) if properties else np.zeros((0, MINILM_DIM), np.float32),
+    }
+    index = {"encoder": config.encoder_id, "verbs": draft.verbs, "objects": draft.objects,
+             "properties": properties, "verb_template": VERB_TEMPLATE}
+    # One metadata key only: safetensors stores metadata as a map whose order is not guaranteed.
+    blob = save_safetensors(tensors, metadata={"index": json.dumps(index, sort_keys=True)})
+    return blob, cache
+
+
+def build(
+    config: BuildConfig, transport: Transport | None = None, progress: Progress | None = None
+) -> BuildResult:
+    """Run every pass and emit the bundle at ``config.out`` (atomically)."""
+    started = time.perf_counter()
+    verbs = read_vocabulary(config.verbs_file, kind="verbs")
+    objects = read_vocabulary(config.objects_file, kind="objects")
+    cache = RecordCache(config.cache_root)
+
+    draft = _source_pass(config, verbs, objects, cache, transport, progress)
+    draft.count("read_vocabulary", "verbs", len(verbs.names))
+    draft.count("read_vocabulary", "objects", len(objects.names))
+    draft.count("read_vocabulary", "normalization notes", len(verbs.notes) + len(objects.notes))
+    _overrides_pass(config, draft)
+    check_draft(draft)
+
+    graph = build_graph(draft)
+    properties = draft.properties()
+    w_vp, w_po = weight_matrices(draft, properties)
+    energy = affordance_energy_matrix(w_vp, w_po, tau=config.tau, form=config.energy_form)  # [V, O]
+    v_index = {v: i for i, v in enumerate(draft.verbs)}
+    o_index = {o: i for i, o in enumerate(draft.objects)}
+    for verb, obj in draft.forbidden:
+        if verb in v_index and obj in o_index:
+            energy[v_index[verb], o_index[obj]] = FORBIDDEN_ENERGY
+    energy_buf = io.BytesIO()
+    np.save(energy_buf, energy, allow_pickle=False)
+
+    embeddings_blob, emb_cache = _embeddings(config, draft, properties, progress)
+    report = BundleReport(
+        kb_name=config.name,
+        counts={
+            "verbs": len(draft.verbs), "objects": len(draft.objects), "properties": len(properties),
+            "verb_property_edges": sum(len(p) for p in draft.verb_props.values()),
+            "property_object_edges": graph.number_of_edges()
+            - sum(len(p) for p in draft.verb_props.values()),
+            "forbidden_pairs": len(draft.forbidden),
+        },
+        pass_counts={stage: dict(sorted(c.items())) for stage, c in sorted(draft.counters.items())},
+        drops=sorted(draft.drops, key=lambda d: (d.stage, d.item, d.reason)),
+        coverage=coverage(draft, energy),
+    )
+    files = {
+        "graph.json": graph_json(graph),
+        "graph.ttl": graph_turtle(graph, config.name),
+        "embeddings.safetensors": embeddings_blob,
+        "affordance_energy.npy": energy_buf.getvalue(),
+        "report.json": (json.dumps(report.model_dump(mode="json"), indent=1, sort_keys=True) + "\n").encode(),
+    }
+    digests = {name: file_digest(data) for name, data in files.items()}
+    manifest = Manifest(
+        kb_name=config.name,
+        kb_version=config.kb_version,
+        content_sha256=content_hash(digests),
+        files=digests,
+        sources=draft.sources,
+        text_encoder=TextEncoderInfo(id=config.encoder_id, weights_sha256=MINILM_SHA256,
+                                     dim=MINILM_DIM, verb_template=VERB_TEMPLATE),
+        energy=EnergyInfo(form=config.energy_form, tau=config.tau),
+        verbs=draft.verbs,
+        objects=draft.objects,
+        properties=properties,
+    )
+    duration = time.perf_counter() - started
+    info = BuildInfo(
+        created_at=datetime.now(UTC).isoformat(timespec="seconds"),
+        host=platform.node(),
+        craft_e_version=__version__,
+        duration_s=round(duration, 3),
+        argv=sys.argv,
+    )
+    write_bundle(config.out, files, manifest, info)
+    return BuildResult(config.out, manifest, report, verbs.notes + objects.notes,
+                       emb_cache.hits, emb_cache.misses, duration)

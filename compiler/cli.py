@@ -1,0 +1,305 @@
+"""``craftc``: the knowledge compiler's command line. Commands are thin; work lives in modules.
+
+Exit codes: 0 ok; 1 a check failed (validate, diff --fail-on, cache verify); 2 bad input or
+usage (files, vocabularies, overrides, unknown provider); 3 a source could not answer (missing
+record in replay, live provider failed after retries).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Annotated, NoReturn
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from craft_e.paths import CACHE_DIR, VOCAB_DIR
+
+app = typer.Typer(help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
+                  no_args_is_help=True, add_completion=False)
+cache_app = typer.Typer(help="Inspect the record cache.", no_args_is_help=True)
+curate_app = typer.Typer(help="Store hand-written answers to the project's prompts (provider 'curated').",
+                         no_args_is_help=True)
+app.add_typer(cache_app, name="cache")
+app.add_typer(curate_app, name="curate")
+err = Console(stderr=True)
+stdout = Console()
+
+EXIT_CHECK_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_SOURCE_FAILED = 3
+PROVIDERS = ("replay", "openai", "gemini")
+
+
+def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+CacheOpt = Annotated[Path, typer.Option(help="Record cache root (artifacts/cache).", envvar="CRAFT_CACHE")]
+
+
+@app.command()
+def build(
+    verbs: Annotated[Path, typer.Option(help="Verbs file: one verb per line.")],
+    objects: Annotated[Path, typer.Option(help="Objects file (default: the union vocabulary).")] = VOCAB_DIR / "union_objects.txt",
+    provider: Annotated[str, typer.Option(help="replay (cache only) | openai | gemini (cache-first, then live).")] = "replay",
+    model: Annotated[str | None, typer.Option(help="Model id (default: craft-e-curators for replay).")] = None,
+    record_provider: Annotated[str, typer.Option(help="With replay: whose records to replay (curated, openai, ...).")] = "curated",
+    base_url: Annotated[str | None, typer.Option(help="Live provider base URL (OpenAI-compatible or Gemini).")] = None,
+    mode: Annotated[str, typer.Option(help="llm (two-stage property KB) | conceptnet (CRAFT baseline) | direct (direct-LLM baseline).")] = "llm",
+    overrides: Annotated[Path | None, typer.Option(help="TOML file of edits compiled with provenance 'override'.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Output bundle folder (default artifacts/kb/<name>).")] = None,
+    name: Annotated[str, typer.Option(help="KB name (lowercase, digits, . _ -).")] = "craft-e-default",
+    kb_version: Annotated[str, typer.Option("--kb-version", help="Semantic version written to the manifest.")] = "1.0.0",
+    tau: Annotated[float | None, typer.Option(help="w_po threshold for an edge to count (default 0.5; 0 for direct).")] = None,
+    energy_form: Annotated[str, typer.Option(help="sum-tanh (paper, default) | normalized-product.")] = "sum-tanh",
+    cache: CacheOpt = CACHE_DIR,
+    quiet: Annotated[bool, typer.Option(help="No progress bars.")] = False,
+) -> None:
+    """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
+    from pydantic import ValidationError
+
+    from craft_e.compiler.build import BuildConfig
+    from craft_e.compiler.build import build as run_build
+    from craft_e.compiler.sources.llm import SourceError
+    from craft_e.compiler.vocab import VocabError
+
+    if provider not in PROVIDERS:
+        fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")
+    if mode not in ("llm", "conceptnet", "direct"):
+        fail(f"unknown mode {mode!r}; choose llm, conceptnet or direct")
+    transport = None
+    if provider != "replay":
+        from craft_e.compiler.sources.transports import make_transport
+
+        try:
+            transport = make_transport(provider, model=model, base_url=base_url)
+        except ValueError as exc:
+            fail(str(exc))
+        identity, model_id = transport.provider, transport.model
+    else:
+        identity, model_id = record_provider, model or "craft-e-curators"
+    try:
+        config = BuildConfig(
+            verbs_file=verbs, objects_file=objects, out=out or Path("artifacts/kb") / name, name=name,
+            kb_version=kb_version, mode=mode, provider=identity, model=model_id, cache_root=cache,
+            overrides_file=overrides, tau=(0.0 if mode == "direct" else 0.5) if tau is None else tau,
+            energy_form=energy_form,
+        )
+    except ValidationError as exc:
+        fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
+    try:
+        with _progress(quiet) as bar:
+            tasks: dict[str, int] = {}
+
+            def tick(stage: str, n: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=None)
+                bar.advance(tasks[stage], n)
+
+            result = run_build(config, transport=transport, progress=tick)
+    except VocabError as exc:
+        fail(str(exc))
+    except SourceError as exc:
+        fail(str(exc), EXIT_SOURCE_FAILED)
+    except ValueError as exc:  # overrides and other input errors name their file and line
+        fail(str(exc))
+    for note in result.notes:
+        err.print(f"[yellow]note:[/] {note}", highlight=False)
+    m = result.manifest
+    stdout.print(
+        f"built [bold]{m.kb_name}[/] {m.kb_version} -> {result.out}\n"
+        f"  content sha256 {m.content_sha256}\n"
+        f"  {len(m.verbs)} verbs, {len(m.properties)} properties, {len(m.objects)} objects; "
+        f"embeddings {result.embedding_hits} cached / {result.embedding_misses} computed; "
+        f"{result.duration_s:.2f} s",
+        highlight=False,
+    )
+
+
+def _progress(quiet: bool) -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), console=err, disable=quiet or not err.is_terminal)
+
+
+@app.command()
+def validate(bundle: Annotated[Path, typer.Argument(help="Bundle folder.")]) -> None:
+    """Verify a bundle: schema, per-file sha256, content hash, internal consistency."""
+    from craft_e.runtime.bundle import BundleError, load_bundle
+
+    try:
+        kb = load_bundle(bundle, check_encoder=False)
+    except BundleError as exc:
+        fail(str(exc), EXIT_CHECK_FAILED)
+    stdout.print(f"ok: {kb.manifest.kb_name} {kb.manifest.kb_version} content sha256 {kb.manifest.content_sha256}")
+
+
+@app.command()
+def diff(
+    old: Annotated[Path, typer.Argument(help="Old bundle.")],
+    new: Annotated[Path, typer.Argument(help="New bundle.")],
+    format: Annotated[str, typer.Option("--format", help="md | json")] = "md",
+    top_k: Annotated[int, typer.Option(help="Objects per verb in the behavioural diff.")] = 5,
+    threshold: Annotated[float, typer.Option(help="Report weight changes larger than this.")] = 0.1,
+    fail_on: Annotated[list[str] | None, typer.Option("--fail-on", help="Gate: top1-changed | verb-removed | edges-removed>N | any-change.")] = None,
+) -> None:
+    """Structural and behavioural differences between two bundles (Markdown for a PR)."""
+    from craft_e.compiler.diff import DiffError, diff_bundles, gate_failures, render_markdown
+    from craft_e.runtime.bundle import BundleError, load_bundle
+
+    try:
+        a, b = load_bundle(old, check_encoder=False), load_bundle(new, check_encoder=False)
+    except BundleError as exc:
+        fail(str(exc), EXIT_BAD_INPUT)
+    result = diff_bundles(a, b, top_k=top_k, threshold=threshold)
+    if format == "json":
+        stdout.print_json(json.dumps(result))
+    elif format == "md":
+        sys.stdout.write(render_markdown(result))
+    else:
+        fail(f"unknown format {format!r}; use md or json")
+    try:
+        failures = gate_failures(result, fail_on or [])
+    except DiffError as exc:
+        fail(str(exc))
+    for failure in failures:
+        err.print(f"[bold red]gate failed:[/] {failure}", highlight=False)
+    if failures:
+        raise typer.Exit(EXIT_CHECK_FAILED)
+
+
+@app.command()
+def explain(
+    bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
+    verb: Annotated[str, typer.Argument(help="Verb, e.g. cut.")],
+    obj: Annotated[str, typer.Argument(metavar="OBJECT", help="Object, e.g. knife.")],
+) -> None:
+    """Print the verb -> property -> object paths behind E_aff(verb, object)."""
+    from craft_e.runtime.bundle import BundleError, load_bundle
+    from craft_e.runtime.explain import UnknownNameError, explain_pair
+
+    try:
+        kb = load_bundle(bundle, check_encoder=False)
+        text = explain_pair(kb, verb, obj).render()
+    except (BundleError, UnknownNameError) as exc:
+        fail(str(exc))
+    sys.stdout.write(text + "\n")
+
+
+@app.command()
+def review(
+    bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
+    sample: Annotated[int, typer.Option(help="How many random verb -> property -> object paths.")] = 20,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+) -> None:
+    """Print random verb -> property -> object paths with weights, for a human read."""
+    import random
+
+    from craft_e.runtime.bundle import BundleError, load_bundle
+
+    try:
+        kb = load_bundle(bundle, check_encoder=False)
+    except BundleError as exc:
+        fail(str(exc))
+    paths = kb.paths()
+    rng = random.Random(seed)
+    for p in rng.sample(paths, min(sample, len(paths))):
+        sys.stdout.write(f"{p.verb} -({p.w_vp:.2f})-> {p.prop} -({p.w_po:.2f})-> {p.obj}\n")
+
+
+@app.command()
+def schema(
+    write: Annotated[bool, typer.Option(help="Regenerate schemas/v1/json/*.schema.json.")] = False,
+) -> None:
+    """Print (or regenerate) the JSON Schemas of every v1 artifact."""
+    from craft_e.schemas.generate import SCHEMA_DIR, generate_all, write_all
+
+    if write:
+        for path in write_all():
+            stdout.print(f"wrote {path}")
+        return
+    sys.stdout.write(json.dumps({k: v for k, v in generate_all().items()}, indent=2, sort_keys=True) + "\n")
+    err.print(f"(committed copies live in {SCHEMA_DIR})")
+
+
+@cache_app.command("verify")
+def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
+    """Re-hash every record; report corrupt and orphaned files (exit 1 if any)."""
+    from craft_e.compiler.cache import RecordCache
+
+    report = RecordCache(cache).verify()
+    for path, why in report.corrupt:
+        err.print(f"[red]corrupt:[/] {why}", highlight=False)
+    for path in report.orphaned:
+        err.print(f"[yellow]orphaned:[/] {path}", highlight=False)
+    stdout.print(f"checked {report.checked} records: {len(report.corrupt)} corrupt, {len(report.orphaned)} orphaned")
+    if not report.ok:
+        raise typer.Exit(EXIT_CHECK_FAILED)
+
+
+@cache_app.command("stats")
+def cache_stats(cache: CacheOpt = CACHE_DIR) -> None:
+    """Records and bytes per source, provider and prompt."""
+    from craft_e.compiler.cache import RecordCache
+
+    stdout.print_json(json.dumps(RecordCache(cache).stats()))
+
+
+@curate_app.command("record")
+def curate_record(
+    prompt: Annotated[str, typer.Option(help="verb_properties | object_properties | verb_objects")],
+    answers: Annotated[Path, typer.Option(help="JSONL file: one answer payload per line.")],
+    verbs: Annotated[Path, typer.Option(help="Verbs file (defines the property set for objects).")] = VOCAB_DIR / "union_verbs.txt",
+    objects: Annotated[Path, typer.Option(help="Objects file.")] = VOCAB_DIR / "union_objects.txt",
+    cache: CacheOpt = CACHE_DIR,
+) -> None:
+    """Store written answers as provider-'curated' records of their rendered prompts."""
+    from craft_e.compiler.curate import CurationError, record_answers
+    from craft_e.compiler.sources.llm import LLMSource, SourceError
+    from craft_e.compiler.cache import RecordCache
+    from craft_e.compiler.vocab import VocabError, read_vocabulary
+
+    try:
+        v = read_vocabulary(verbs, kind="verbs").names
+        o = read_vocabulary(objects, kind="objects").names
+        result = record_answers(LLMSource(RecordCache(cache)), prompt, answers, v, o)
+    except (CurationError, VocabError) as exc:
+        fail(str(exc))
+    except SourceError as exc:
+        fail(str(exc), EXIT_SOURCE_FAILED)
+    for line in result.skipped:
+        err.print(f"[yellow]skipped:[/] {line}", highlight=False)
+    stdout.print(f"stored {result.stored} records, {result.unchanged} unchanged, {len(result.skipped)} skipped")
+
+
+@curate_app.command("pending")
+def curate_pending(
+    verbs: Annotated[Path, typer.Option(help="Verbs file.")] = VOCAB_DIR / "union_verbs.txt",
+    objects: Annotated[Path, typer.Option(help="Objects file.")] = VOCAB_DIR / "union_objects.txt",
+    cache: CacheOpt = CACHE_DIR,
+) -> None:
+    """List object prompts with no answer yet (object + the named property set), as JSON."""
+    from craft_e.compiler.cache import RecordCache
+    from craft_e.compiler.curate import pending_object_requests
+    from craft_e.compiler.sources.llm import LLMSource, SourceError
+    from craft_e.compiler.vocab import VocabError, read_vocabulary
+
+    try:
+        v = read_vocabulary(verbs, kind="verbs").names
+        o = read_vocabulary(objects, kind="objects").names
+        pending = pending_object_requests(LLMSource(RecordCache(cache)), v, o)
+    except VocabError as exc:
+        fail(str(exc))
+    except SourceError as exc:
+        fail(str(exc), EXIT_SOURCE_FAILED)
+    sys.stdout.write(json.dumps(pending, indent=1) + "\n")
+
+
+def main() -> None:  # pragma: no cover - console entry
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    app()

@@ -1,0 +1,128 @@
+"""Storing hand-written answers as records under provider ``curated``.
+
+No LLM API is reachable from the project's machines, so the shipped knowledge is written by
+people for the project's own rendered prompts. This module renders the exact prompt each answer
+replies to, validates the answer against the prompt's response schema, and stores it as a
+record — the same record a live provider would have produced, under an honest provider id.
+It never invents an answer: a prompt without a written answer stays missing.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from craft_e.compiler.llm_knowledge import direct_call, plan_object_calls, verb_call
+from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
+from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
+from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from craft_e.schemas.v1.records import Record
+
+
+class CurationError(ValueError):
+    """An answers file is malformed; the message names the file, the line and the fix."""
+
+
+@dataclass
+class CurationResult:
+    stored: int
+    unchanged: int
+    skipped: list[str]
+
+
+def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
+    rows: list[tuple[int, dict[str, object]]] = []
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("//"):
+            continue
+        try:
+            value = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise CurationError(f"{path}:{lineno}: not JSON ({exc.msg}); one answer object per line") from None
+        if not isinstance(value, dict):
+            raise CurationError(f"{path}:{lineno}: expected a JSON object")
+        rows.append((lineno, value))
+    return rows
+
+
+def _store(source: LLMSource, call: PromptCall, payload: dict[str, object], note: str) -> bool:
+    request = source.request_for(call)
+    key = request.key()
+    existing = source.cache.get(LLM_SOURCE, key)
+    record = Record(key=key, source=LLM_SOURCE, request=request,
+                    raw_response=json.dumps(payload, ensure_ascii=False, sort_keys=True),
+                    payload=payload, note=note)
+    if existing is not None and existing == record:
+        return False
+    source.cache.put(record)
+    return True
+
+
+def record_answers(
+    source: LLMSource, prompt_id: str, answers: Path, verbs: list[str], objects: list[str],
+    note: str = "written by a CRAFT-E curator for this rendered prompt",
+) -> CurationResult:
+    """Validate each answer in ``answers`` (JSONL) and store it as the record of its prompt."""
+    result = CurationResult(0, 0, [])
+    pending: dict[str, PromptCall] = {}
+    if prompt_id == "object_properties":
+        properties = _stage1_properties(source, verbs)
+        _, calls = plan_object_calls(source, objects, properties)
+        pending = {c.subject: c for c in calls}
+    for lineno, row in _read_answers(answers):
+        where = f"{answers}:{lineno}"
+        try:
+            if prompt_id == "verb_properties":
+                vp = VerbProperties.model_validate(row)
+                payload = vp.model_dump(mode="json")
+                call = verb_call(normalize_verb(vp.verb))
+                if len(vp.properties) != call.variables["k"]:
+                    raise CurationError(f"{where}: {vp.verb!r} has {len(vp.properties)} properties, the prompt asks for {call.variables['k']}")
+            elif prompt_id == "object_properties":
+                op = ObjectProperties.model_validate(row)
+                payload = op.model_dump(mode="json")
+                obj = normalize_name(op.object)
+                if obj not in pending:
+                    result.skipped.append(f"{where}: {obj!r} has no pending request (already recorded or not in the objects file)")
+                    continue
+                call = pending[obj]
+                named = set(call.variables["properties"])
+                outside = [s.property for s in op.scores if normalize_property(s.property) not in named]
+                if outside:
+                    raise CurationError(f"{where}: {obj!r} scores properties outside the named set: {outside[:5]}")
+            elif prompt_id == "verb_objects":
+                vo = VerbObjects.model_validate(row)
+                payload = vo.model_dump(mode="json")
+                call = direct_call(normalize_verb(vo.verb), objects)
+                offered = set(objects)
+                outside = [r.object for r in vo.ranking if normalize_name(r.object) not in offered]
+                if outside:
+                    raise CurationError(f"{where}: ranking names objects not offered: {outside[:5]}")
+            else:
+                raise CurationError(f"unknown prompt id {prompt_id!r}")
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            raise CurationError(f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+        if _store(source, call, payload, note):
+            result.stored += 1
+        else:
+            result.unchanged += 1
+    return result
+
+
+def _stage1_properties(source: LLMSource, verbs: list[str]) -> list[str]:
+    props: set[str] = set()
+    for verb in verbs:
+        record = source.fetch(verb_call(verb))
+        props.update(normalize_property(p.name) for p in VerbProperties.model_validate(record.payload).properties)
+    return sorted(props)
+
+
+def pending_object_requests(source: LLMSource, verbs: list[str], objects: list[str]) -> list[dict[str, object]]:
+    """What a curator still has to answer: object + the named property set to score."""
+    _, calls = plan_object_calls(source, objects, _stage1_properties(source, verbs))
+    return [{"object": c.subject, "property_set_id": c.variables["property_set_id"],
+             "properties": c.variables["properties"]} for c in calls]

@@ -1,0 +1,179 @@
+"""Source passes that turn LLM records into a draft: the paper's two stages + the direct baseline.
+
+Stage 1 asks, per verb, for k properties with w_vp. Stage 2 asks, per object, for w_po over a
+*named property set*. An object's existing records are reused for the properties they cover;
+only properties no record covers go into a new, smaller request, so adding verbs never
+invalidates what was already recorded.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+
+from craft_e.compiler.draft import KnowledgeDraft, Link
+from craft_e.compiler.prompts import format_list, load_prompt, property_set_id
+from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
+from craft_e.schemas.names import normalize_name, normalize_property
+from craft_e.schemas.v1.bundle import SourceInfo
+from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from craft_e.schemas.v1.records import Record
+
+K_PROPERTIES = 10
+Progress = Callable[[str, int], None]
+
+
+def verb_call(verb: str, k: int = K_PROPERTIES) -> PromptCall:
+    return PromptCall(load_prompt("verb_properties"), verb, {"verb": verb, "k": k})
+
+
+def object_call(obj: str, properties: list[str]) -> PromptCall:
+    props = sorted(properties)
+    return PromptCall(
+        load_prompt("object_properties"),
+        obj,
+        {
+            "object": obj,
+            "properties": props,
+            "property_list": format_list(props),
+            "property_set_id": property_set_id(props),
+        },
+    )
+
+
+def direct_call(verb: str, objects: list[str]) -> PromptCall:
+    return PromptCall(
+        load_prompt("verb_objects"),
+        verb,
+        {"verb": verb, "objects": sorted(objects), "object_list": format_list(objects)},
+    )
+
+
+def index_object_records(source: LLMSource) -> dict[str, list[Record]]:
+    """Existing object-property records of this provider/model, by object, in key order."""
+    ref = load_prompt("object_properties").ref
+    index: dict[str, list[Record]] = defaultdict(list)
+    for _, record in source.cache.iter_records(LLM_SOURCE):
+        req = record.request
+        if req.prompt == ref and req.provider == source.provider and req.model == source.model:
+            index[req.subject].append(record)
+    return index
+
+
+def plan_object_calls(
+    source: LLMSource, objects: list[str], properties: list[str]
+) -> tuple[dict[str, list[Record]], list[PromptCall]]:
+    """Which records cover each object, and the new calls needed for uncovered properties."""
+    index = index_object_records(source)
+    wanted = set(properties)
+    covering: dict[str, list[Record]] = {}
+    calls: list[PromptCall] = []
+    for obj in objects:
+        records = [r for r in index.get(obj, []) if wanted & set(r.request.variables["properties"])]
+        covered = {p for r in records for p in r.request.variables["properties"]}
+        missing = sorted(wanted - covered)
+        covering[obj] = records
+        if missing:
+            calls.append(object_call(obj, missing))
+    return covering, calls
+
+
+def llm_property_draft(
+    source: LLMSource, verbs: list[str], objects: list[str], progress: Progress | None = None
+) -> KnowledgeDraft:
+    """The paper's CRAFT-E KB: verb -> k properties -> objects, both stages from ``source``."""
+    draft = KnowledgeDraft(verbs=list(verbs), objects=list(objects))
+    stage1 = "stage1_verb_properties"
+    verb_records = source.fetch_many(
+        [verb_call(v) for v in verbs], on_done=(lambda c: progress(stage1, 1)) if progress else None
+    )
+    for verb, record in zip(verbs, verb_records, strict=True):
+        payload = VerbProperties.model_validate(record.payload)
+        draft.count(stage1, "records read")
+        props = draft.verb_props.setdefault(verb, {})
+        for item in payload.properties:
+            name = normalize_property(item.name)
+            if name in props:
+                draft.drop(stage1, f"{verb} -> {name}", "duplicate: property repeated after normalization")
+                continue
+            props[name] = Link(item.weight, (record.key,), "llm")
+            draft.count(stage1, "edges kept")
+        if len(props) < K_PROPERTIES:
+            draft.count(stage1, "verbs with fewer than k properties")
+
+    stage2 = "stage2_object_properties"
+    properties = draft.properties()
+    covering, new_calls = plan_object_calls(source, objects, properties)
+    new_records = source.fetch_many(
+        new_calls, on_done=(lambda c: progress(stage2, 1)) if progress else None
+    )
+    for call, record in zip(new_calls, new_records, strict=True):
+        covering[call.subject].append(record)
+    wanted = set(properties)
+    used_records = 0
+    for obj in objects:
+        for record in sorted(covering[obj], key=lambda r: r.key):
+            used_records += 1
+            named = set(record.request.variables["properties"])
+            payload = ObjectProperties.model_validate(record.payload)
+            for score in payload.scores:
+                prop = normalize_property(score.property)
+                if prop not in named:
+                    draft.drop(stage2, f"{obj} -> {prop}", f"outside named set: record {record.key[:12]}")
+                    continue
+                if prop not in wanted:
+                    draft.count(stage2, "scores for properties no verb uses")
+                    continue
+                links = draft.prop_objs.setdefault(prop, {})
+                if obj in links:
+                    draft.drop(stage2, f"{prop} -> {obj}", f"duplicate: also scored by {links[obj].provenance[0][:12]}")
+                    continue
+                links[obj] = Link(score.weight, (record.key,), "llm")
+                draft.count(stage2, "edges kept")
+    draft.count(stage2, "records read", used_records)
+    draft.count(stage2, "records newly requested", len(new_calls))
+    draft.sources.append(
+        SourceInfo(
+            kind="llm",
+            provider=source.provider,
+            model=source.model,
+            prompts=[load_prompt("verb_properties").ref, load_prompt("object_properties").ref],
+            records=len(verb_records) + used_records,
+        )
+    )
+    return draft
+
+
+def direct_llm_draft(
+    source: LLMSource, verbs: list[str], objects: list[str], progress: Progress | None = None
+) -> KnowledgeDraft:
+    """The direct-LLM baseline as a bundle: verb -> ``direct: <verb>`` -> ranked objects.
+
+    One pseudo-property per verb (w_vp = 1) carries the model's confidence as w_po, so the
+    same runtime and harness score it; objects the model left out get no edge.
+    """
+    draft = KnowledgeDraft(verbs=list(verbs), objects=list(objects))
+    stage = "direct_verb_objects"
+    vocabulary = set(objects)
+    records = source.fetch_many(
+        [direct_call(v, objects) for v in verbs],
+        on_done=(lambda c: progress(stage, 1)) if progress else None,
+    )
+    for verb, record in zip(verbs, records, strict=True):
+        payload = VerbObjects.model_validate(record.payload)
+        prop = f"direct: {verb}"
+        draft.verb_props[verb] = {prop: Link(1.0, (record.key,), "direct")}
+        links = draft.prop_objs.setdefault(prop, {})
+        for item in payload.ranking:
+            obj = normalize_name(item.object)
+            if obj not in vocabulary:
+                draft.drop(stage, f"{verb} -> {obj}", "outside vocabulary: object not offered")
+                continue
+            links[obj] = Link(item.score, (record.key,), "direct")
+            draft.count(stage, "edges kept")
+        draft.count(stage, "records read")
+    draft.sources.append(
+        SourceInfo(kind="llm", provider=source.provider, model=source.model,
+                   prompts=[load_prompt("verb_objects").ref], records=len(records))
+    )
+    return draft

@@ -1,0 +1,92 @@
+"""Prompt templates (``prompts/<id>.<version>.md``) and their rendering into chat messages.
+
+A template has a ``## system`` and a ``## user`` section and ``str.format`` placeholders. The
+prompt id and version come from the file name, and ``<id>@<version>`` is part of every record
+key: editing a template means a new version file, which addresses new records.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from craft_e.paths import PROMPTS_DIR
+from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from craft_e.schemas.v1.records import Message
+
+PAYLOADS: dict[str, type[BaseModel]] = {
+    "verb_properties": VerbProperties,
+    "object_properties": ObjectProperties,
+    "verb_objects": VerbObjects,
+}
+DEFAULT_VERSIONS = {"verb_properties": "v1", "object_properties": "v1", "verb_objects": "v1"}
+_SECTION = re.compile(r"^## (system|user)\s*$", re.MULTILINE)
+
+
+class PromptError(ValueError):
+    """A template is missing or malformed."""
+
+
+@dataclass(frozen=True)
+class PromptTemplate:
+    prompt_id: str
+    version: str
+    system: str
+    user: str
+    path: Path
+
+    @property
+    def ref(self) -> str:
+        """``<id>@<version>``: the name used in record keys and manifests."""
+        return f"{self.prompt_id}@{self.version}"
+
+    @property
+    def payload_model(self) -> type[BaseModel]:
+        return PAYLOADS[self.prompt_id]
+
+    def response_schema(self) -> dict[str, Any]:
+        return self.payload_model.model_json_schema()
+
+    def render(self, **variables: Any) -> list[Message]:
+        """Fill the placeholders; a missing variable is a template error, not a silent blank."""
+        try:
+            return [
+                Message(role="system", content=self.system.format(**variables)),
+                Message(role="user", content=self.user.format(**variables)),
+            ]
+        except KeyError as exc:
+            raise PromptError(f"{self.path}: placeholder {exc} has no value") from exc
+
+
+@cache
+def load_prompt(prompt_id: str, version: str | None = None, prompts_dir: Path = PROMPTS_DIR) -> PromptTemplate:
+    """Read ``<prompts_dir>/<prompt_id>.<version>.md``."""
+    version = version or DEFAULT_VERSIONS[prompt_id]
+    path = prompts_dir / f"{prompt_id}.{version}.md"
+    if prompt_id not in PAYLOADS:
+        raise PromptError(f"unknown prompt id {prompt_id!r}; known: {sorted(PAYLOADS)}")
+    if not path.is_file():
+        raise PromptError(f"prompt template {path} not found")
+    text = path.read_text(encoding="utf-8")
+    parts = _SECTION.split(text)
+    sections = {parts[i]: parts[i + 1].strip() for i in range(1, len(parts) - 1, 2)}
+    if set(sections) != {"system", "user"}:
+        raise PromptError(f"{path}: needs exactly a '## system' and a '## user' section")
+    return PromptTemplate(prompt_id, version, sections["system"], sections["user"], path)
+
+
+def property_set_id(properties: list[str]) -> str:
+    """A short, stable name for a set of properties (the object prompt names the set it scores)."""
+    digest = hashlib.sha256("\n".join(sorted(properties)).encode()).hexdigest()
+    return f"ps-{digest[:12]}"
+
+
+def format_list(items: list[str]) -> str:
+    """One item per line, sorted: the rendering must not depend on input order."""
+    return "\n".join(f"- {item}" for item in sorted(items))

@@ -1,0 +1,1 @@
+"""Knowledge sources behind one interface each, cache-first: LLM, ConceptNet, overrides."""

@@ -1,0 +1,69 @@
+"""Reading verb and object vocabulary files: one name per line, ``#`` comments allowed.
+
+Bad input gets a clear error naming the file and line; harmless irregularities (blank lines,
+duplicates after normalization, case) are normalized and *reported*, not silently absorbed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from craft_e.schemas.names import normalize_name, normalize_verb
+
+
+class VocabError(ValueError):
+    """A vocabulary file cannot be used; the message names the file, the line and the fix."""
+
+
+@dataclass
+class Vocabulary:
+    """Normalized names in first-seen order, plus what normalization changed."""
+
+    path: Path
+    names: list[str]
+    notes: list[str] = field(default_factory=list)
+
+
+def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
+    """Read and normalize a verbs (``kind="verbs"``) or objects file."""
+    normalize: Callable[[str], str] = normalize_verb if kind == "verbs" else normalize_name
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise VocabError(f"{path}: file not found (pass a text file with one {kind[:-1]} per line)") from None
+    except IsADirectoryError:
+        raise VocabError(f"{path}: is a directory, expected a text file of {kind}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise VocabError(
+            f"{path}:{line}: not valid UTF-8 (byte 0x{data[exc.start]:02x}); re-save the file as UTF-8"
+        ) from None
+    names: list[str] = []
+    seen: dict[str, int] = {}
+    notes: list[str] = []
+    blank = 0
+    for lineno, raw_line in enumerate(text.splitlines(), start=1):
+        line = raw_line.split("#", 1)[0].strip()
+        if not line:
+            blank += 1 if not raw_line.strip().startswith("#") else 0
+            continue
+        try:
+            name = normalize(line)
+        except ValueError as exc:
+            raise VocabError(f"{path}:{lineno}: {exc}; use plain lowercase words") from None
+        if name != line:
+            notes.append(f"{path}:{lineno}: {line!r} normalized to {name!r}")
+        if name in seen:
+            notes.append(f"{path}:{lineno}: duplicate of line {seen[name]} ({name!r}), ignored")
+            continue
+        seen[name] = lineno
+        names.append(name)
+    if blank:
+        notes.append(f"{path}: {blank} blank line(s) ignored")
+    if not names:
+        raise VocabError(f"{path}: no {kind} found (the file is empty or only comments)")
+    return Vocabulary(path=path, names=names, notes=notes)

@@ -1,0 +1,1 @@
+"""Encoders: a registry of name -> checksum-verified weights, one ``load()`` per backend."""

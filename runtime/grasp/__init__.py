@@ -1,0 +1,1 @@
+"""CRAFT-E package."""

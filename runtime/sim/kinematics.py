@@ -1,0 +1,113 @@
+"""Forward kinematics of a serial URDF chain in numpy.
+
+pybullet can only report link poses for the joint state the body is *in*; checking an IK solution
+that way means moving the robot (and disturbing the scene) before we know whether the solution is
+any good. A numpy FK over the URDF's joint origins lets us verify every waypoint up front and
+report ``ik_failure`` without touching the simulation.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+Mat4 = npt.NDArray[np.float64]
+
+
+def _floats(text: str | None, default: str) -> npt.NDArray[np.float64]:
+    return np.array([float(v) for v in (text or default).split()], dtype=np.float64)
+
+
+def rpy_matrix(rpy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """URDF fixed-axis roll-pitch-yaw: R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def axis_angle_matrix(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
+    """Rodrigues rotation about a unit axis."""
+    k = axis / np.linalg.norm(axis)
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+
+
+@dataclass(frozen=True)
+class ChainJoint:
+    """One joint on the path from the root link to the end link."""
+
+    name: str
+    kind: str  # "revolute", "continuous", "prismatic" or "fixed"
+    origin: Mat4
+    axis: npt.NDArray[np.float64]
+
+    @property
+    def movable(self) -> bool:
+        return self.kind != "fixed"
+
+
+@dataclass(frozen=True)
+class SerialChain:
+    """The joints from the URDF root to ``end_link``, in order."""
+
+    joints: tuple[ChainJoint, ...]
+
+    @property
+    def movable_names(self) -> list[str]:
+        return [j.name for j in self.joints if j.movable]
+
+    def forward(self, q: npt.NDArray[np.float64]) -> Mat4:
+        """Pose of the end link in the root frame for the movable joint values ``q``."""
+        pose = np.eye(4)
+        values = iter(np.asarray(q, dtype=np.float64))
+        for joint in self.joints:
+            pose = pose @ joint.origin
+            if not joint.movable:
+                continue
+            motion = np.eye(4)
+            value = float(next(values))
+            if joint.kind == "prismatic":
+                motion[:3, 3] = joint.axis * value
+            else:
+                motion[:3, :3] = axis_angle_matrix(joint.axis, value)
+            pose = pose @ motion
+        return pose
+
+
+def load_chain(urdf: Path, end_link: str) -> SerialChain:
+    """Parse ``urdf`` and return the chain from its root link to ``end_link``."""
+    root = ET.parse(urdf).getroot()
+    by_child: dict[str, ET.Element] = {}
+    for joint in root.findall("joint"):
+        child = joint.find("child")
+        if child is not None:
+            by_child[child.attrib["link"]] = joint
+    path: list[ChainJoint] = []
+    link = end_link
+    while link in by_child:
+        element = by_child[link]
+        origin_el = element.find("origin")
+        axis_el = element.find("axis")
+        origin = np.eye(4)
+        if origin_el is not None:
+            origin[:3, :3] = rpy_matrix(_floats(origin_el.get("rpy"), "0 0 0"))
+            origin[:3, 3] = _floats(origin_el.get("xyz"), "0 0 0")
+        axis = _floats(axis_el.get("xyz") if axis_el is not None else None, "1 0 0")
+        path.append(ChainJoint(element.attrib["name"], element.attrib["type"], origin, axis))
+        parent = element.find("parent")
+        if parent is None:
+            raise ValueError(f"{urdf}: joint {element.attrib['name']} has no parent")
+        link = parent.attrib["link"]
+    if not path:
+        raise ValueError(f"{urdf}: link {end_link!r} is not the child of any joint")
+    return SerialChain(tuple(reversed(path)))

@@ -1,0 +1,41 @@
+"""Version 1 of the CRAFT-E artifact schemas (records, payloads, bundle manifest, report)."""
+
+from craft_e.schemas.v1.bundle import (
+    BUNDLE_FILES,
+    BuildInfo,
+    BundleReport,
+    FileDigest,
+    Manifest,
+    SourceInfo,
+    TextEncoderInfo,
+)
+from craft_e.schemas.v1.payloads import (
+    ObjectProperties,
+    PropertyScore,
+    ScoredProperty,
+    VerbObjects,
+    VerbProperties,
+    RankedObject,
+)
+from craft_e.schemas.v1.records import Record, RecordRequest
+
+SCHEMA_VERSION = 1
+
+__all__ = [
+    "BUNDLE_FILES",
+    "SCHEMA_VERSION",
+    "BuildInfo",
+    "BundleReport",
+    "FileDigest",
+    "Manifest",
+    "ObjectProperties",
+    "PropertyScore",
+    "RankedObject",
+    "Record",
+    "RecordRequest",
+    "ScoredProperty",
+    "SourceInfo",
+    "TextEncoderInfo",
+    "VerbObjects",
+    "VerbProperties",
+]

@@ -1,0 +1,124 @@
+"""Bundle v1: the files of ``artifacts/kb/<name>/`` and the manifest that makes them verifiable.
+
+``content_sha256`` is the sha256 of the canonical JSON of ``{file name: sha256}`` over every file
+listed in ``files`` (all bundle files but ``manifest.json`` and ``build_info.json``). Volatile
+facts (time, host, durations) live in ``build_info.json`` so two builds of the same inputs are
+byte-identical.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from craft_e.schemas.v1.records import canonical_json
+
+MANIFEST_SCHEMA_ID = "https://craft-e.dev/schemas/v1/manifest.json"
+REPORT_SCHEMA_ID = "https://craft-e.dev/schemas/v1/report.json"
+
+#: Files whose digests the manifest lists (hashed into ``content_sha256``).
+BUNDLE_FILES: tuple[str, ...] = (
+    "graph.json",
+    "graph.ttl",
+    "embeddings.safetensors",
+    "affordance_energy.npy",
+    "report.json",
+)
+MANIFEST_FILE = "manifest.json"
+BUILD_INFO_FILE = "build_info.json"
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class FileDigest(_Frozen):
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    bytes: int = Field(ge=0)
+
+
+class SourceInfo(_Frozen):
+    """One knowledge source that fed the graph."""
+
+    kind: Literal["llm", "conceptnet", "overrides"]
+    provider: str
+    model: str = ""
+    prompts: list[str] = Field(default_factory=list, description="prompt id@version used")
+    records: int = Field(ge=0, description="records read from this source")
+
+
+class TextEncoderInfo(_Frozen):
+    """The embedding space of the bundle; the runtime refuses a different encoder."""
+
+    id: str
+    weights_sha256: str
+    dim: int = Field(gt=0)
+    verb_template: str = Field(description="text template the verb query is embedded through")
+
+
+class EnergyInfo(_Frozen):
+    """How ``affordance_energy.npy`` was computed."""
+
+    form: Literal["sum-tanh", "normalized-product"] = "sum-tanh"
+    tau: float = Field(ge=0.0, le=1.0, description="w_po threshold for an edge to count")
+
+
+class Manifest(_Frozen):
+    schema_id: Literal["https://craft-e.dev/schemas/v1/manifest.json"] = MANIFEST_SCHEMA_ID
+    schema_version: Literal[1] = 1
+    kb_name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]*$")
+    kb_version: str = Field(pattern=r"^\d+\.\d+\.\d+$")
+    content_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    files: dict[str, FileDigest]
+    sources: list[SourceInfo]
+    text_encoder: TextEncoderInfo
+    energy: EnergyInfo
+    verbs: list[str] = Field(description="row order of the verb axis (E_aff rows, embeddings)")
+    objects: list[str] = Field(description="column order of the object axis")
+    properties: list[str] = Field(description="row order of property embeddings")
+
+
+def content_hash(files: dict[str, FileDigest]) -> str:
+    """sha256 over the canonical JSON of ``{name: sha256}``: the bundle's identity."""
+    table = {name: digest.sha256 for name, digest in sorted(files.items())}
+    return hashlib.sha256(canonical_json(table).encode()).hexdigest()
+
+
+class DropRecord(_Frozen):
+    """Something a compiler pass left out, and why (ConceptNet-style drop counting)."""
+
+    stage: str
+    item: str
+    reason: str
+
+
+class Coverage(_Frozen):
+    verbs_with_fewer_than_k_properties: dict[str, int]
+    objects_without_properties: list[str]
+    objects_unreachable_from_any_verb: list[str]
+    verbs_reaching_no_object: list[str]
+
+
+class BundleReport(_Frozen):
+    schema_id: Literal["https://craft-e.dev/schemas/v1/report.json"] = REPORT_SCHEMA_ID
+    kb_name: str
+    counts: dict[str, int]
+    pass_counts: dict[str, dict[str, int]] = Field(
+        description="per compiler pass: named counters (read, kept, dropped: <reason>)"
+    )
+    drops: list[DropRecord]
+    coverage: Coverage
+
+
+class BuildInfo(BaseModel):
+    """Volatile facts about one build; outside the content hash on purpose."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    created_at: str
+    host: str
+    craft_e_version: str
+    duration_s: float
+    argv: list[str]

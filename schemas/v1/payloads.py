@@ -1,0 +1,87 @@
+"""Structured answers the LLM prompts ask for (the ``response_schema`` of every prompt).
+
+An answer that does not validate is retried and then reported; it is never coerced. Weights are
+probabilities of relevance in [0, 1] as in the paper (w_vp, w_po).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+Weight = Annotated[float, Field(ge=0.0, le=1.0)]
+Phrase = Annotated[str, Field(min_length=1, max_length=64)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ScoredProperty(_Strict):
+    """One property of a verb (stage 1): how important it is for doing the verb (w_vp)."""
+
+    name: Phrase
+    weight: Weight
+
+
+class VerbProperties(_Strict):
+    """Stage 1 answer: the k descriptive properties of objects that afford ``verb``."""
+
+    verb: Phrase
+    properties: list[ScoredProperty] = Field(min_length=1, max_length=20)
+
+    @field_validator("properties")
+    @classmethod
+    def _unique(cls, value: list[ScoredProperty]) -> list[ScoredProperty]:
+        names = [p.name.strip().lower() for p in value]
+        if len(set(names)) != len(names):
+            raise ValueError("property names must be unique")
+        return value
+
+
+class PropertyScore(_Strict):
+    """One property an object has (stage 2): how well the object satisfies it (w_po)."""
+
+    property: Phrase
+    weight: Weight
+
+
+class ObjectProperties(_Strict):
+    """Stage 2 answer: the properties (from the prompt's named set) that ``object`` has.
+
+    Sparse on purpose: properties the object lacks are left out rather than scored 0.
+    """
+
+    object: Phrase
+    scores: list[PropertyScore] = Field(max_length=400)
+
+    @field_validator("scores")
+    @classmethod
+    def _unique(cls, value: list[PropertyScore]) -> list[PropertyScore]:
+        names = [s.property.strip().lower() for s in value]
+        if len(set(names)) != len(names):
+            raise ValueError("each property may be scored once")
+        return value
+
+
+class RankedObject(_Strict):
+    """One object of the direct-LLM baseline answer, with the model's confidence."""
+
+    object: Phrase
+    score: Weight
+
+
+class VerbObjects(_Strict):
+    """Direct-LLM baseline: objects of the vocabulary one can ``verb`` with, best first."""
+
+    verb: Phrase
+    ranking: list[RankedObject] = Field(max_length=500)
+
+    @field_validator("ranking")
+    @classmethod
+    def _unique(cls, value: list[RankedObject]) -> list[RankedObject]:
+        names = [r.object.strip().lower() for r in value]
+        if len(set(names)) != len(names):
+            raise ValueError("each object may appear once in the ranking")
+        return value
