@@ -21,9 +21,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
-from safetensors.numpy import save as save_safetensors
-
 from craft_e import __version__
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.draft import KnowledgeDraft
@@ -34,16 +31,18 @@ from craft_e.compiler.llm_knowledge import direct_llm_draft, llm_property_draft
 from craft_e.compiler.rdf import graph_turtle
 from craft_e.compiler.sources.llm import LLMSource, Transport
 from craft_e.compiler.vocab import Vocabulary, read_vocabulary
-from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256, MINILM_DIM
+from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
 from craft_e.runtime.energies import EnergyForm, affordance_energy_matrix
 from craft_e.schemas.v1.bundle import (
-    BundleReport,
     BuildInfo,
+    BundleReport,
     EnergyInfo,
     Manifest,
     TextEncoderInfo,
     content_hash,
 )
+from pydantic import BaseModel, ConfigDict
+from safetensors.numpy import save as save_safetensors
 
 KnowledgeMode = Literal["llm", "conceptnet", "direct"]
 VERB_TEMPLATE = "something to {verb}"
@@ -86,14 +85,20 @@ Progress = Callable[[str, int], None]
 
 
 def _source_pass(
-    config: BuildConfig, verbs: Vocabulary, objects: Vocabulary, cache: RecordCache,
-    transport: Transport | None, progress: Progress | None,
+    config: BuildConfig,
+    verbs: Vocabulary,
+    objects: Vocabulary,
+    cache: RecordCache,
+    transport: Transport | None,
+    progress: Progress | None,
 ) -> KnowledgeDraft:
     if config.mode == "conceptnet":
         from craft_e.compiler.sources.conceptnet import conceptnet_draft
 
         return conceptnet_draft(verbs.names, objects.names, config.conceptnet, cache, progress)
-    source = LLMSource(cache=cache, provider=config.provider, model=config.model, transport=transport)
+    source = LLMSource(
+        cache=cache, provider=config.provider, model=config.model, transport=transport
+    )
     if config.mode == "direct":
         return direct_llm_draft(source, verbs.names, objects.names, progress)
     return llm_property_draft(source, verbs.names, objects.names, progress)
@@ -115,10 +120,17 @@ def _embeddings(
         "verb": cache.embed(draft.verbs, tick),  # [V, d]
         "verb_query": cache.embed([VERB_TEMPLATE.format(verb=v) for v in draft.verbs], tick),
         "object": cache.embed(draft.objects, tick),  # [O, d]
-        "property": cache.embed(properties, tick) if properties else np.zeros((0, MINILM_DIM), np.float32),
+        "property": cache.embed(properties, tick)
+        if properties
+        else np.zeros((0, MINILM_DIM), np.float32),
     }
-    index = {"encoder": config.encoder_id, "verbs": draft.verbs, "objects": draft.objects,
-             "properties": properties, "verb_template": VERB_TEMPLATE}
+    index = {
+        "encoder": config.encoder_id,
+        "verbs": draft.verbs,
+        "objects": draft.objects,
+        "properties": properties,
+        "verb_template": VERB_TEMPLATE,
+    }
     # One metadata key only: safetensors stores metadata as a map whose order is not guaranteed.
     blob = save_safetensors(tensors, metadata={"index": json.dumps(index, sort_keys=True)})
     return blob, cache
@@ -156,7 +168,9 @@ def build(
     report = BundleReport(
         kb_name=config.name,
         counts={
-            "verbs": len(draft.verbs), "objects": len(draft.objects), "properties": len(properties),
+            "verbs": len(draft.verbs),
+            "objects": len(draft.objects),
+            "properties": len(properties),
             "verb_property_edges": sum(len(p) for p in draft.verb_props.values()),
             "property_object_edges": graph.number_of_edges()
             - sum(len(p) for p in draft.verb_props.values()),
@@ -171,7 +185,9 @@ def build(
         "graph.ttl": graph_turtle(graph, config.name),
         "embeddings.safetensors": embeddings_blob,
         "affordance_energy.npy": energy_buf.getvalue(),
-        "report.json": (json.dumps(report.model_dump(mode="json"), indent=1, sort_keys=True) + "\n").encode(),
+        "report.json": (
+            json.dumps(report.model_dump(mode="json"), indent=1, sort_keys=True) + "\n"
+        ).encode(),
     }
     digests = {name: file_digest(data) for name, data in files.items()}
     manifest = Manifest(
@@ -180,8 +196,12 @@ def build(
         content_sha256=content_hash(digests),
         files=digests,
         sources=draft.sources,
-        text_encoder=TextEncoderInfo(id=config.encoder_id, weights_sha256=MINILM_SHA256,
-                                     dim=MINILM_DIM, verb_template=VERB_TEMPLATE),
+        text_encoder=TextEncoderInfo(
+            id=config.encoder_id,
+            weights_sha256=MINILM_SHA256,
+            dim=MINILM_DIM,
+            verb_template=VERB_TEMPLATE,
+        ),
         energy=EnergyInfo(form=config.energy_form, tau=config.tau),
         verbs=draft.verbs,
         objects=draft.objects,
@@ -196,5 +216,12 @@ def build(
         argv=sys.argv,
     )
     write_bundle(config.out, files, manifest, info)
-    return BuildResult(config.out, manifest, report, verbs.notes + objects.notes,
-                       emb_cache.hits, emb_cache.misses, duration)
+    return BuildResult(
+        config.out,
+        manifest,
+        report,
+        verbs.notes + objects.notes,
+        emb_cache.hits,
+        emb_cache.misses,
+        duration,
+    )

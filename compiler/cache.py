@@ -15,9 +15,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from craft_e.schemas.v1.records import Record
+from pydantic import ValidationError
 
 
 class CacheError(RuntimeError):
@@ -41,7 +40,10 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 def record_bytes(record: Record) -> bytes:
     """The committed spelling of a record: indented, sorted keys, trailing newline."""
-    return (json.dumps(record.model_dump(mode="json"), indent=2, sort_keys=True, ensure_ascii=False) + "\n").encode()
+    return (
+        json.dumps(record.model_dump(mode="json"), indent=2, sort_keys=True, ensure_ascii=False)
+        + "\n"
+    ).encode()
 
 
 @dataclass

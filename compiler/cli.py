@@ -14,16 +14,27 @@ from pathlib import Path
 from typing import Annotated, NoReturn
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
 from craft_e.paths import CACHE_DIR, VOCAB_DIR
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+)
 
-app = typer.Typer(help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
-                  no_args_is_help=True, add_completion=False)
+app = typer.Typer(
+    help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
+    no_args_is_help=True,
+    add_completion=False,
+)
 cache_app = typer.Typer(help="Inspect the record cache.", no_args_is_help=True)
-curate_app = typer.Typer(help="Store hand-written answers to the project's prompts (provider 'curated').",
-                         no_args_is_help=True)
+curate_app = typer.Typer(
+    help="Store hand-written answers to the project's prompts (provider 'curated').",
+    no_args_is_help=True,
+)
 app.add_typer(cache_app, name="cache")
 app.add_typer(curate_app, name="curate")
 err = Console(stderr=True)
@@ -40,34 +51,63 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     raise typer.Exit(code)
 
 
-CacheOpt = Annotated[Path, typer.Option(help="Record cache root (artifacts/cache).", envvar="CRAFT_CACHE")]
+CacheOpt = Annotated[
+    Path, typer.Option(help="Record cache root (artifacts/cache).", envvar="CRAFT_CACHE")
+]
 
 
 @app.command()
 def build(
     verbs: Annotated[Path, typer.Option(help="Verbs file: one verb per line.")],
-    objects: Annotated[Path, typer.Option(help="Objects file (default: the union vocabulary).")] = VOCAB_DIR / "union_objects.txt",
-    provider: Annotated[str, typer.Option(help="replay (cache only) | openai | gemini (cache-first, then live).")] = "replay",
-    model: Annotated[str | None, typer.Option(help="Model id (default: craft-e-curators for replay).")] = None,
-    record_provider: Annotated[str, typer.Option(help="With replay: whose records to replay (curated, openai, ...).")] = "curated",
-    base_url: Annotated[str | None, typer.Option(help="Live provider base URL (OpenAI-compatible or Gemini).")] = None,
-    mode: Annotated[str, typer.Option(help="llm (two-stage property KB) | conceptnet (CRAFT baseline) | direct (direct-LLM baseline).")] = "llm",
-    overrides: Annotated[Path | None, typer.Option(help="TOML file of edits compiled with provenance 'override'.")] = None,
-    out: Annotated[Path | None, typer.Option(help="Output bundle folder (default artifacts/kb/<name>).")] = None,
-    name: Annotated[str, typer.Option(help="KB name (lowercase, digits, . _ -).")] = "craft-e-default",
-    kb_version: Annotated[str, typer.Option("--kb-version", help="Semantic version written to the manifest.")] = "1.0.0",
-    tau: Annotated[float | None, typer.Option(help="w_po threshold for an edge to count (default 0.5; 0 for direct).")] = None,
-    energy_form: Annotated[str, typer.Option(help="sum-tanh (paper, default) | normalized-product.")] = "sum-tanh",
+    objects: Annotated[
+        Path, typer.Option(help="Objects file (default: the union vocabulary).")
+    ] = VOCAB_DIR / "union_objects.txt",
+    provider: Annotated[
+        str, typer.Option(help="replay (cache only) | openai | gemini (cache-first, then live).")
+    ] = "replay",
+    model: Annotated[
+        str | None, typer.Option(help="Model id (default: craft-e-curators for replay).")
+    ] = None,
+    record_provider: Annotated[
+        str, typer.Option(help="With replay: whose records to replay (curated, openai, ...).")
+    ] = "curated",
+    base_url: Annotated[
+        str | None, typer.Option(help="Live provider base URL (OpenAI-compatible or Gemini).")
+    ] = None,
+    mode: Annotated[
+        str,
+        typer.Option(
+            help="llm (two-stage property KB) | conceptnet (CRAFT baseline) | direct (direct-LLM baseline)."
+        ),
+    ] = "llm",
+    overrides: Annotated[
+        Path | None, typer.Option(help="TOML file of edits compiled with provenance 'override'.")
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Output bundle folder (default artifacts/kb/<name>).")
+    ] = None,
+    name: Annotated[
+        str, typer.Option(help="KB name (lowercase, digits, . _ -).")
+    ] = "craft-e-default",
+    kb_version: Annotated[
+        str, typer.Option("--kb-version", help="Semantic version written to the manifest.")
+    ] = "1.0.0",
+    tau: Annotated[
+        float | None,
+        typer.Option(help="w_po threshold for an edge to count (default 0.5; 0 for direct)."),
+    ] = None,
+    energy_form: Annotated[
+        str, typer.Option(help="sum-tanh (paper, default) | normalized-product.")
+    ] = "sum-tanh",
     cache: CacheOpt = CACHE_DIR,
     quiet: Annotated[bool, typer.Option(help="No progress bars.")] = False,
 ) -> None:
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
-    from pydantic import ValidationError
-
     from craft_e.compiler.build import BuildConfig
     from craft_e.compiler.build import build as run_build
     from craft_e.compiler.sources.llm import SourceError
     from craft_e.compiler.vocab import VocabError
+    from pydantic import ValidationError
 
     if provider not in PROVIDERS:
         fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")
@@ -86,16 +126,24 @@ def build(
         identity, model_id = record_provider, model or "craft-e-curators"
     try:
         config = BuildConfig(
-            verbs_file=verbs, objects_file=objects, out=out or Path("artifacts/kb") / name, name=name,
-            kb_version=kb_version, mode=mode, provider=identity, model=model_id, cache_root=cache,
-            overrides_file=overrides, tau=(0.0 if mode == "direct" else 0.5) if tau is None else tau,
+            verbs_file=verbs,
+            objects_file=objects,
+            out=out or Path("artifacts/kb") / name,
+            name=name,
+            kb_version=kb_version,
+            mode=mode,
+            provider=identity,
+            model=model_id,
+            cache_root=cache,
+            overrides_file=overrides,
+            tau=(0.0 if mode == "direct" else 0.5) if tau is None else tau,
             energy_form=energy_form,
         )
     except ValidationError as exc:
         fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
     try:
         with _progress(quiet) as bar:
-            tasks: dict[str, int] = {}
+            tasks: dict[str, TaskID] = {}
 
             def tick(stage: str, n: int) -> None:
                 if stage not in tasks:
@@ -123,8 +171,14 @@ def build(
 
 
 def _progress(quiet: bool) -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), console=err, disable=quiet or not err.is_terminal)
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err,
+        disable=quiet or not err.is_terminal,
+    )
 
 
 @app.command()
@@ -136,7 +190,9 @@ def validate(bundle: Annotated[Path, typer.Argument(help="Bundle folder.")]) -> 
         kb = load_bundle(bundle, check_encoder=False)
     except BundleError as exc:
         fail(str(exc), EXIT_CHECK_FAILED)
-    stdout.print(f"ok: {kb.manifest.kb_name} {kb.manifest.kb_version} content sha256 {kb.manifest.content_sha256}")
+    stdout.print(
+        f"ok: {kb.manifest.kb_name} {kb.manifest.kb_version} content sha256 {kb.manifest.content_sha256}"
+    )
 
 
 @app.command()
@@ -146,7 +202,12 @@ def diff(
     format: Annotated[str, typer.Option("--format", help="md | json")] = "md",
     top_k: Annotated[int, typer.Option(help="Objects per verb in the behavioural diff.")] = 5,
     threshold: Annotated[float, typer.Option(help="Report weight changes larger than this.")] = 0.1,
-    fail_on: Annotated[list[str] | None, typer.Option("--fail-on", help="Gate: top1-changed | verb-removed | edges-removed>N | any-change.")] = None,
+    fail_on: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--fail-on", help="Gate: top1-changed | verb-removed | edges-removed>N | any-change."
+        ),
+    ] = None,
 ) -> None:
     """Structural and behavioural differences between two bundles (Markdown for a PR)."""
     from craft_e.compiler.diff import DiffError, diff_bundles, gate_failures, render_markdown
@@ -194,7 +255,9 @@ def explain(
 @app.command()
 def review(
     bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
-    sample: Annotated[int, typer.Option(help="How many random verb -> property -> object paths.")] = 20,
+    sample: Annotated[
+        int, typer.Option(help="How many random verb -> property -> object paths.")
+    ] = 20,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
     """Print random verb -> property -> object paths with weights, for a human read."""
@@ -223,7 +286,9 @@ def schema(
         for path in write_all():
             stdout.print(f"wrote {path}")
         return
-    sys.stdout.write(json.dumps({k: v for k, v in generate_all().items()}, indent=2, sort_keys=True) + "\n")
+    sys.stdout.write(
+        json.dumps({k: v for k, v in generate_all().items()}, indent=2, sort_keys=True) + "\n"
+    )
     err.print(f"(committed copies live in {SCHEMA_DIR})")
 
 
@@ -233,11 +298,13 @@ def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
     from craft_e.compiler.cache import RecordCache
 
     report = RecordCache(cache).verify()
-    for path, why in report.corrupt:
+    for _path, why in report.corrupt:
         err.print(f"[red]corrupt:[/] {why}", highlight=False)
     for path in report.orphaned:
         err.print(f"[yellow]orphaned:[/] {path}", highlight=False)
-    stdout.print(f"checked {report.checked} records: {len(report.corrupt)} corrupt, {len(report.orphaned)} orphaned")
+    stdout.print(
+        f"checked {report.checked} records: {len(report.corrupt)} corrupt, {len(report.orphaned)} orphaned"
+    )
     if not report.ok:
         raise typer.Exit(EXIT_CHECK_FAILED)
 
@@ -254,14 +321,16 @@ def cache_stats(cache: CacheOpt = CACHE_DIR) -> None:
 def curate_record(
     prompt: Annotated[str, typer.Option(help="verb_properties | object_properties | verb_objects")],
     answers: Annotated[Path, typer.Option(help="JSONL file: one answer payload per line.")],
-    verbs: Annotated[Path, typer.Option(help="Verbs file (defines the property set for objects).")] = VOCAB_DIR / "union_verbs.txt",
+    verbs: Annotated[
+        Path, typer.Option(help="Verbs file (defines the property set for objects).")
+    ] = VOCAB_DIR / "union_verbs.txt",
     objects: Annotated[Path, typer.Option(help="Objects file.")] = VOCAB_DIR / "union_objects.txt",
     cache: CacheOpt = CACHE_DIR,
 ) -> None:
     """Store written answers as provider-'curated' records of their rendered prompts."""
+    from craft_e.compiler.cache import RecordCache
     from craft_e.compiler.curate import CurationError, record_answers
     from craft_e.compiler.sources.llm import LLMSource, SourceError
-    from craft_e.compiler.cache import RecordCache
     from craft_e.compiler.vocab import VocabError, read_vocabulary
 
     try:
@@ -274,7 +343,9 @@ def curate_record(
         fail(str(exc), EXIT_SOURCE_FAILED)
     for line in result.skipped:
         err.print(f"[yellow]skipped:[/] {line}", highlight=False)
-    stdout.print(f"stored {result.stored} records, {result.unchanged} unchanged, {len(result.skipped)} skipped")
+    stdout.print(
+        f"stored {result.stored} records, {result.unchanged} unchanged, {len(result.skipped)} skipped"
+    )
 
 
 @curate_app.command("pending")

@@ -13,13 +13,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from craft_e.compiler.llm_knowledge import direct_call, plan_object_calls, verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
 from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from craft_e.schemas.v1.records import Record
+from pydantic import ValidationError
 
 
 class CurationError(ValueError):
@@ -41,7 +40,9 @@ def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
         try:
             value = json.loads(line)
         except json.JSONDecodeError as exc:
-            raise CurationError(f"{path}:{lineno}: not JSON ({exc.msg}); one answer object per line") from None
+            raise CurationError(
+                f"{path}:{lineno}: not JSON ({exc.msg}); one answer object per line"
+            ) from None
         if not isinstance(value, dict):
             raise CurationError(f"{path}:{lineno}: expected a JSON object")
         rows.append((lineno, value))
@@ -52,9 +53,14 @@ def _store(source: LLMSource, call: PromptCall, payload: dict[str, object], note
     request = source.request_for(call)
     key = request.key()
     existing = source.cache.get(LLM_SOURCE, key)
-    record = Record(key=key, source=LLM_SOURCE, request=request,
-                    raw_response=json.dumps(payload, ensure_ascii=False, sort_keys=True),
-                    payload=payload, note=note)
+    record = Record(
+        key=key,
+        source=LLM_SOURCE,
+        request=request,
+        raw_response=json.dumps(payload, ensure_ascii=False, sort_keys=True),
+        payload=payload,
+        note=note,
+    )
     if existing is not None and existing == record:
         return False
     source.cache.put(record)
@@ -62,7 +68,11 @@ def _store(source: LLMSource, call: PromptCall, payload: dict[str, object], note
 
 
 def record_answers(
-    source: LLMSource, prompt_id: str, answers: Path, verbs: list[str], objects: list[str],
+    source: LLMSource,
+    prompt_id: str,
+    answers: Path,
+    verbs: list[str],
+    objects: list[str],
     note: str = "written by a CRAFT-E curator for this rendered prompt",
 ) -> CurationResult:
     """Validate each answer in ``answers`` (JSONL) and store it as the record of its prompt."""
@@ -80,19 +90,27 @@ def record_answers(
                 payload = vp.model_dump(mode="json")
                 call = verb_call(normalize_verb(vp.verb))
                 if len(vp.properties) != call.variables["k"]:
-                    raise CurationError(f"{where}: {vp.verb!r} has {len(vp.properties)} properties, the prompt asks for {call.variables['k']}")
+                    raise CurationError(
+                        f"{where}: {vp.verb!r} has {len(vp.properties)} properties, the prompt asks for {call.variables['k']}"
+                    )
             elif prompt_id == "object_properties":
                 op = ObjectProperties.model_validate(row)
                 payload = op.model_dump(mode="json")
                 obj = normalize_name(op.object)
                 if obj not in pending:
-                    result.skipped.append(f"{where}: {obj!r} has no pending request (already recorded or not in the objects file)")
+                    result.skipped.append(
+                        f"{where}: {obj!r} has no pending request (already recorded or not in the objects file)"
+                    )
                     continue
                 call = pending[obj]
                 named = set(call.variables["properties"])
-                outside = [s.property for s in op.scores if normalize_property(s.property) not in named]
+                outside = [
+                    s.property for s in op.scores if normalize_property(s.property) not in named
+                ]
                 if outside:
-                    raise CurationError(f"{where}: {obj!r} scores properties outside the named set: {outside[:5]}")
+                    raise CurationError(
+                        f"{where}: {obj!r} scores properties outside the named set: {outside[:5]}"
+                    )
             elif prompt_id == "verb_objects":
                 vo = VerbObjects.model_validate(row)
                 payload = vo.model_dump(mode="json")
@@ -100,12 +118,16 @@ def record_answers(
                 offered = set(objects)
                 outside = [r.object for r in vo.ranking if normalize_name(r.object) not in offered]
                 if outside:
-                    raise CurationError(f"{where}: ranking names objects not offered: {outside[:5]}")
+                    raise CurationError(
+                        f"{where}: ranking names objects not offered: {outside[:5]}"
+                    )
             else:
                 raise CurationError(f"unknown prompt id {prompt_id!r}")
         except ValidationError as exc:
             first = exc.errors()[0]
-            raise CurationError(f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+            raise CurationError(
+                f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}"
+            ) from None
         if _store(source, call, payload, note):
             result.stored += 1
         else:
@@ -117,12 +139,23 @@ def _stage1_properties(source: LLMSource, verbs: list[str]) -> list[str]:
     props: set[str] = set()
     for verb in verbs:
         record = source.fetch(verb_call(verb))
-        props.update(normalize_property(p.name) for p in VerbProperties.model_validate(record.payload).properties)
+        props.update(
+            normalize_property(p.name)
+            for p in VerbProperties.model_validate(record.payload).properties
+        )
     return sorted(props)
 
 
-def pending_object_requests(source: LLMSource, verbs: list[str], objects: list[str]) -> list[dict[str, object]]:
+def pending_object_requests(
+    source: LLMSource, verbs: list[str], objects: list[str]
+) -> list[dict[str, object]]:
     """What a curator still has to answer: object + the named property set to score."""
     _, calls = plan_object_calls(source, objects, _stage1_properties(source, verbs))
-    return [{"object": c.subject, "property_set_id": c.variables["property_set_id"],
-             "properties": c.variables["properties"]} for c in calls]
+    return [
+        {
+            "object": c.subject,
+            "property_set_id": c.variables["property_set_id"],
+            "properties": c.variables["properties"],
+        }
+        for c in calls
+    ]

@@ -13,7 +13,13 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from craft_e.schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, BuildInfo, FileDigest, Manifest
+from craft_e.schemas.v1.bundle import (
+    BUILD_INFO_FILE,
+    MANIFEST_FILE,
+    BuildInfo,
+    FileDigest,
+    Manifest,
+)
 
 
 def file_digest(data: bytes) -> FileDigest:
@@ -24,7 +30,9 @@ def model_json(model: Manifest | BuildInfo) -> bytes:
     return (json.dumps(model.model_dump(mode="json"), indent=2, sort_keys=True) + "\n").encode()
 
 
-def write_bundle(out: Path, files: dict[str, bytes], manifest: Manifest, build_info: BuildInfo) -> None:
+def write_bundle(
+    out: Path, files: dict[str, bytes], manifest: Manifest, build_info: BuildInfo
+) -> None:
     """Write ``files`` + manifest + build info to ``out`` atomically (rename of a whole folder)."""
     out = out.resolve()
     out.parent.mkdir(parents=True, exist_ok=True)

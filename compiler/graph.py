@@ -13,7 +13,6 @@ from typing import Any
 import networkx as nx
 import numpy as np
 import numpy.typing as npt
-
 from craft_e.compiler.draft import KnowledgeDraft
 from craft_e.schemas.v1.bundle import Coverage
 
@@ -30,7 +29,9 @@ def check_draft(draft: KnowledgeDraft) -> None:
                 draft.drop(STAGE, f"{verb} -> {prop}", f"weight out of range: {link.weight}")
     used = set(draft.properties())
     for prop in sorted(set(draft.prop_objs) - used):
-        draft.count(STAGE, "property-object edges without a verb (not in graph)", len(draft.prop_objs[prop]))
+        draft.count(
+            STAGE, "property-object edges without a verb (not in graph)", len(draft.prop_objs[prop])
+        )
         del draft.prop_objs[prop]
     for prop, objs in draft.prop_objs.items():
         for obj, link in list(objs.items()):
@@ -53,14 +54,24 @@ def build_graph(draft: KnowledgeDraft) -> nx.DiGraph:
         graph.add_node(f"prop:{prop}", kind="property", name=prop)
     for verb in draft.verbs:
         for prop, link in sorted(draft.verb_props.get(verb, {}).items()):
-            graph.add_edge(f"verb:{verb}", f"prop:{prop}", weight=link.weight,
-                           relation=link.relation, provenance=list(link.provenance))
+            graph.add_edge(
+                f"verb:{verb}",
+                f"prop:{prop}",
+                weight=link.weight,
+                relation=link.relation,
+                provenance=list(link.provenance),
+            )
     objects = set(draft.objects)
     for prop in draft.properties():
         for obj, link in sorted(draft.prop_objs.get(prop, {}).items()):
             if obj in objects:
-                graph.add_edge(f"prop:{prop}", f"obj:{obj}", weight=link.weight,
-                               relation=link.relation, provenance=list(link.provenance))
+                graph.add_edge(
+                    f"prop:{prop}",
+                    f"obj:{obj}",
+                    weight=link.weight,
+                    relation=link.relation,
+                    provenance=list(link.provenance),
+                )
     for verb, obj in sorted(draft.forbidden):
         graph.nodes[f"verb:{verb}"].setdefault("forbidden_objects", []).append(obj)
     return graph
@@ -69,10 +80,7 @@ def build_graph(draft: KnowledgeDraft) -> nx.DiGraph:
 def graph_json(graph: nx.DiGraph) -> bytes:
     """Node-link JSON with sorted nodes and edges: identical graphs give identical bytes."""
     nodes = [{"id": n, **graph.nodes[n]} for n in sorted(graph.nodes)]
-    edges = [
-        {"source": u, "target": v, **graph.edges[u, v]}
-        for u, v in sorted(graph.edges)
-    ]
+    edges = [{"source": u, "target": v, **graph.edges[u, v]} for u, v in sorted(graph.edges)]
     data: dict[str, Any] = {"directed": True, "multigraph": False, "nodes": nodes, "edges": edges}
     return (json.dumps(data, indent=1, sort_keys=True, ensure_ascii=False) + "\n").encode()
 

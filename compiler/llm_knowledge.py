@@ -94,7 +94,9 @@ def llm_property_draft(
         for item in payload.properties:
             name = normalize_property(item.name)
             if name in props:
-                draft.drop(stage1, f"{verb} -> {name}", "duplicate: property repeated after normalization")
+                draft.drop(
+                    stage1, f"{verb} -> {name}", "duplicate: property repeated after normalization"
+                )
                 continue
             props[name] = Link(item.weight, (record.key,), "llm")
             draft.count(stage1, "edges kept")
@@ -115,18 +117,24 @@ def llm_property_draft(
         for record in sorted(covering[obj], key=lambda r: r.key):
             used_records += 1
             named = set(record.request.variables["properties"])
-            payload = ObjectProperties.model_validate(record.payload)
-            for score in payload.scores:
+            answer = ObjectProperties.model_validate(record.payload)
+            for score in answer.scores:
                 prop = normalize_property(score.property)
                 if prop not in named:
-                    draft.drop(stage2, f"{obj} -> {prop}", f"outside named set: record {record.key[:12]}")
+                    draft.drop(
+                        stage2, f"{obj} -> {prop}", f"outside named set: record {record.key[:12]}"
+                    )
                     continue
                 if prop not in wanted:
                     draft.count(stage2, "scores for properties no verb uses")
                     continue
                 links = draft.prop_objs.setdefault(prop, {})
                 if obj in links:
-                    draft.drop(stage2, f"{prop} -> {obj}", f"duplicate: also scored by {links[obj].provenance[0][:12]}")
+                    draft.drop(
+                        stage2,
+                        f"{prop} -> {obj}",
+                        f"duplicate: also scored by {links[obj].provenance[0][:12]}",
+                    )
                     continue
                 links[obj] = Link(score.weight, (record.key,), "llm")
                 draft.count(stage2, "edges kept")
@@ -173,7 +181,12 @@ def direct_llm_draft(
             draft.count(stage, "edges kept")
         draft.count(stage, "records read")
     draft.sources.append(
-        SourceInfo(kind="llm", provider=source.provider, model=source.model,
-                   prompts=[load_prompt("verb_objects").ref], records=len(records))
+        SourceInfo(
+            kind="llm",
+            provider=source.provider,
+            model=source.model,
+            prompts=[load_prompt("verb_objects").ref],
+            records=len(records),
+        )
     )
     return draft

@@ -14,11 +14,10 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel
-
 from craft_e.paths import PROMPTS_DIR
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from craft_e.schemas.v1.records import Message
+from pydantic import BaseModel
 
 PAYLOADS: dict[str, type[BaseModel]] = {
     "verb_properties": VerbProperties,
@@ -65,7 +64,9 @@ class PromptTemplate:
 
 
 @cache
-def load_prompt(prompt_id: str, version: str | None = None, prompts_dir: Path = PROMPTS_DIR) -> PromptTemplate:
+def load_prompt(
+    prompt_id: str, version: str | None = None, prompts_dir: Path = PROMPTS_DIR
+) -> PromptTemplate:
     """Read ``<prompts_dir>/<prompt_id>.<version>.md``."""
     version = version or DEFAULT_VERSIONS[prompt_id]
     path = prompts_dir / f"{prompt_id}.{version}.md"

@@ -32,15 +32,17 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
     try:
         data = path.read_bytes()
     except FileNotFoundError:
-        raise VocabError(f"{path}: file not found (pass a text file with one {kind[:-1]} per line)") from None
+        raise VocabError(
+            f"{path}: file not found (pass a text file with one {kind[:-1]} per line)"
+        ) from None
     except IsADirectoryError:
         raise VocabError(f"{path}: is a directory, expected a text file of {kind}") from None
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = data[: exc.start].count(b"\n") + 1
+        bad_line = data[: exc.start].count(b"\n") + 1
         raise VocabError(
-            f"{path}:{line}: not valid UTF-8 (byte 0x{data[exc.start]:02x}); re-save the file as UTF-8"
+            f"{path}:{bad_line}: not valid UTF-8 (byte 0x{data[exc.start]:02x}); re-save the file as UTF-8"
         ) from None
     names: list[str] = []
     seen: dict[str, int] = {}

@@ -17,8 +17,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import ValidationError
-
 from craft_e.schemas.v1.bundle import (
     BUNDLE_FILES,
     MANIFEST_FILE,
@@ -27,6 +25,7 @@ from craft_e.schemas.v1.bundle import (
     Manifest,
     content_hash,
 )
+from pydantic import ValidationError
 
 FloatArray = npt.NDArray[np.float32]
 SUPPORTED_SCHEMA_VERSIONS = (1,)
@@ -85,8 +84,16 @@ class Bundle:
                 for obj_id, po in self.out_edges(prop_id):
                     name = obj_id.split(":", 1)[1]
                     if (obj is None or name == obj) and po["weight"] >= tau:
-                        result.append(PathStep(v, prop_id.split(":", 1)[1], name, vp["weight"],
-                                               po["weight"], tuple(vp["provenance"] + po["provenance"])))
+                        result.append(
+                            PathStep(
+                                v,
+                                prop_id.split(":", 1)[1],
+                                name,
+                                vp["weight"],
+                                po["weight"],
+                                tuple(vp["provenance"] + po["provenance"]),
+                            )
+                        )
         return result
 
 
@@ -120,14 +127,18 @@ def read_manifest(folder: Path) -> Manifest:
 def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
     """Read every listed file and check its size and sha256, and the content hash."""
     if set(manifest.files) != set(BUNDLE_FILES):
-        raise BundleError(f"{folder / MANIFEST_FILE}: lists {sorted(manifest.files)}, expected {sorted(BUNDLE_FILES)}")
+        raise BundleError(
+            f"{folder / MANIFEST_FILE}: lists {sorted(manifest.files)}, expected {sorted(BUNDLE_FILES)}"
+        )
     data: dict[str, bytes] = {}
     for name, digest in sorted(manifest.files.items()):
         path = folder / name
         try:
             blob = path.read_bytes()
         except FileNotFoundError:
-            raise BundleError(f"{path}: missing from the bundle; rebuild or re-install it") from None
+            raise BundleError(
+                f"{path}: missing from the bundle; rebuild or re-install it"
+            ) from None
         if len(blob) != digest.bytes or _sha256(blob) != digest.sha256:
             raise BundleError(
                 f"{path}: content does not match the manifest (sha256 {_sha256(blob)[:16]}..., "
@@ -135,22 +146,25 @@ def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
                 "or re-install the bundle"
             )
         data[name] = blob
-    actual = content_hash({n: FileDigest(sha256=d.sha256, bytes=d.bytes) for n, d in manifest.files.items()})
+    actual = content_hash(
+        {n: FileDigest(sha256=d.sha256, bytes=d.bytes) for n, d in manifest.files.items()}
+    )
     if actual != manifest.content_sha256:
         raise BundleError(f"{folder / MANIFEST_FILE}: content_sha256 does not match its file table")
     return data
 
 
-def load_bundle(path: Path | str, *, check_encoder: bool = True, encoder_id: str | None = None) -> Bundle:
+def load_bundle(
+    path: Path | str, *, check_encoder: bool = True, encoder_id: str | None = None
+) -> Bundle:
     """Verify and load a bundle folder.
 
     With ``check_encoder`` the bundle's text encoder must be the runtime's (``encoder_id``,
     default minilm-l6-v2 with its pinned weights hash): embeddings from another space would
     silently produce wrong cosines.
     """
-    from safetensors.numpy import load as load_safetensors
-
     from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
+    from safetensors.numpy import load as load_safetensors
 
     folder = Path(path)
     manifest = read_manifest(folder)
@@ -167,14 +181,28 @@ def load_bundle(path: Path | str, *, check_encoder: bool = True, encoder_id: str
     try:
         graph = json.loads(data["graph.json"])
         energy = np.load(io.BytesIO(data["affordance_energy.npy"]), allow_pickle=False)
-        embeddings = {k: np.asarray(v, dtype=np.float32) for k, v in load_safetensors(data["embeddings.safetensors"]).items()}
+        embeddings = {
+            k: np.asarray(v, dtype=np.float32)
+            for k, v in load_safetensors(data["embeddings.safetensors"]).items()
+        }
         report = BundleReport.model_validate_json(data["report.json"])
     except (ValueError, ValidationError, KeyError) as exc:
-        raise BundleError(f"{folder}: a bundle file does not parse ({exc}); rebuild the bundle") from None
+        raise BundleError(
+            f"{folder}: a bundle file does not parse ({exc}); rebuild the bundle"
+        ) from None
     v, o = len(manifest.verbs), len(manifest.objects)
     if energy.shape != (v, o):
-        raise BundleError(f"{folder / 'affordance_energy.npy'}: shape {energy.shape}, manifest says ({v}, {o})")
-    for key, rows in (("verb", v), ("verb_query", v), ("object", o), ("property", len(manifest.properties))):
+        raise BundleError(
+            f"{folder / 'affordance_energy.npy'}: shape {energy.shape}, manifest says ({v}, {o})"
+        )
+    for key, rows in (
+        ("verb", v),
+        ("verb_query", v),
+        ("object", o),
+        ("property", len(manifest.properties)),
+    ):
         if key not in embeddings or embeddings[key].shape[0] != rows:
-            raise BundleError(f"{folder / 'embeddings.safetensors'}: tensor {key!r} missing or not {rows} rows")
+            raise BundleError(
+                f"{folder / 'embeddings.safetensors'}: tensor {key!r} missing or not {rows} rows"
+            )
     return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report)

@@ -33,7 +33,8 @@ def affordance_energy_matrix(
     if form == "sum-tanh":
         has_vp = (w_vp64 > 0).astype(np.float64)  # [V, P]
         total = w_vp64 @ link.astype(np.float64) + has_vp @ w_po_linked  # [V, O]
-        return np.tanh(-total).astype(np.float32)
+        result: FloatArray = np.tanh(-total).astype(np.float32)
+        return result
     if form == "normalized-product":
         norm = np.maximum(w_vp64.sum(axis=1, keepdims=True), 1e-12)  # [V, 1]
         return (-(w_vp64 @ w_po_linked) / norm).astype(np.float32)

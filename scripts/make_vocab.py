@@ -10,7 +10,6 @@ below), ../shared/data/imagenet_affordance/{verbs.txt,objects.tsv}, the simulati
 from __future__ import annotations
 
 import csv
-from pathlib import Path
 
 from craft_e.paths import VOCAB_DIR, shared_dir
 from craft_e.schemas.names import normalize_name, normalize_verb
@@ -37,34 +36,97 @@ PAPER_REAL_OBJECTS = (
 )
 # Simulation asset id -> plain name (YCB + OCRTOC in ../shared/assets/objects).
 SIM_OBJECTS = {
-    "a_colored_wood_blocks": "toy block", "a_cups": "cup", "a_lego_duplo": "lego brick",
-    "a_marbles": "marbles", "a_toy_airplane": "toy airplane", "adjustable_wrench": "wrench",
-    "apple": "apple", "banana": "banana", "baseball": "baseball", "bleach_cleanser": "bleach bottle",
-    "bowl": "bowl", "chain": "chain", "cracker_box": "cracker box", "dice": "dice",
-    "extra_large_clamp": "clamp", "flat_screwdriver": "screwdriver", "foam_brick": "foam brick",
-    "fork": "fork", "gelatin_box": "gelatin box", "golf_ball": "golf ball", "hammer": "hammer",
-    "knife": "knife", "large_clamp": "clamp", "large_marker": "marker", "lemon": "lemon",
-    "master_chef_can": "coffee can", "medium_clamp": "clamp", "mini_soccer_ball": "soccer ball",
-    "mug": "mug", "mustard_bottle": "mustard bottle", "nine_hole_peg_test": "peg board",
-    "orange": "orange", "padlock": "padlock", "peach": "peach", "pear": "pear",
-    "phillips_screwdriver": "screwdriver", "pitcher_base": "pitcher", "plate": "plate",
-    "plum": "plum", "potted_meat_can": "meat can", "power_drill": "drill",
-    "pudding_box": "pudding box", "racquetball": "racquetball", "rubiks_cube": "rubik's cube",
-    "scissors": "scissors", "skillet_lid": "skillet lid", "softball": "softball",
-    "spatula": "spatula", "sponge": "sponge", "spoon": "spoon", "strawberry": "strawberry",
-    "sugar_box": "sugar box", "tennis_ball": "tennis ball", "tomato_soup_can": "soup can",
-    "tuna_fish_can": "tuna can", "windex_bottle": "spray bottle", "wood_block": "wood block",
-    "black_marker": "marker", "blue_cup": "cup", "blue_marker": "marker",
-    "correction_fluid": "correction fluid", "doraemon_bowl": "bowl", "glue_1": "glue",
-    "glue_2": "glue", "green_cup": "cup", "mini_claw_hammer_1": "hammer", "poker_1": "playing card",
-    "red_marker": "marker", "remote_controller_1": "remote", "shampoo": "shampoo bottle",
-    "soap": "soap", "stapler_1": "stapler", "stapler_2": "stapler", "toothpaste_1": "toothpaste",
+    "a_colored_wood_blocks": "toy block",
+    "a_cups": "cup",
+    "a_lego_duplo": "lego brick",
+    "a_marbles": "marbles",
+    "a_toy_airplane": "toy airplane",
+    "adjustable_wrench": "wrench",
+    "apple": "apple",
+    "banana": "banana",
+    "baseball": "baseball",
+    "bleach_cleanser": "bleach bottle",
+    "bowl": "bowl",
+    "chain": "chain",
+    "cracker_box": "cracker box",
+    "dice": "dice",
+    "extra_large_clamp": "clamp",
+    "flat_screwdriver": "screwdriver",
+    "foam_brick": "foam brick",
+    "fork": "fork",
+    "gelatin_box": "gelatin box",
+    "golf_ball": "golf ball",
+    "hammer": "hammer",
+    "knife": "knife",
+    "large_clamp": "clamp",
+    "large_marker": "marker",
+    "lemon": "lemon",
+    "master_chef_can": "coffee can",
+    "medium_clamp": "clamp",
+    "mini_soccer_ball": "soccer ball",
+    "mug": "mug",
+    "mustard_bottle": "mustard bottle",
+    "nine_hole_peg_test": "peg board",
+    "orange": "orange",
+    "padlock": "padlock",
+    "peach": "peach",
+    "pear": "pear",
+    "phillips_screwdriver": "screwdriver",
+    "pitcher_base": "pitcher",
+    "plate": "plate",
+    "plum": "plum",
+    "potted_meat_can": "meat can",
+    "power_drill": "drill",
+    "pudding_box": "pudding box",
+    "racquetball": "racquetball",
+    "rubiks_cube": "rubik's cube",
+    "scissors": "scissors",
+    "skillet_lid": "skillet lid",
+    "softball": "softball",
+    "spatula": "spatula",
+    "sponge": "sponge",
+    "spoon": "spoon",
+    "strawberry": "strawberry",
+    "sugar_box": "sugar box",
+    "tennis_ball": "tennis ball",
+    "tomato_soup_can": "soup can",
+    "tuna_fish_can": "tuna can",
+    "windex_bottle": "spray bottle",
+    "wood_block": "wood block",
+    "black_marker": "marker",
+    "blue_cup": "cup",
+    "blue_marker": "marker",
+    "correction_fluid": "correction fluid",
+    "doraemon_bowl": "bowl",
+    "glue_1": "glue",
+    "glue_2": "glue",
+    "green_cup": "cup",
+    "mini_claw_hammer_1": "hammer",
+    "poker_1": "playing card",
+    "red_marker": "marker",
+    "remote_controller_1": "remote",
+    "shampoo": "shampoo bottle",
+    "soap": "soap",
+    "stapler_1": "stapler",
+    "stapler_2": "stapler",
+    "toothpaste_1": "toothpaste",
 }
 ZHU_VERBS = {
-    "Grasp": "grasp", "Lift": "lift", "Throw": "throw", "Push": "push", "Fix": "fix",
-    "Ride": "ride", "Play": "play", "Watch": "watch", "SitOn": "sit on", "Feed": "feed",
-    "Row": "row", "PourFrom": "pour from", "LookThrough": "look through",
-    "WriteWith": "write with", "TypeOn": "type on",
+    "Grasp": "grasp",
+    "Lift": "lift",
+    "Throw": "throw",
+    "Push": "push",
+    "Fix": "fix",
+    "Ride": "ride",
+    "Play": "play",
+    "Watch": "watch",
+    "SitOn": "sit on",
+    "Feed": "feed",
+    "Row": "row",
+    "PourFrom": "pour from",
+    "LookThrough": "look through",
+    "WriteWith": "write with",
+    "TypeOn": "type on",
 }
 
 
@@ -93,14 +155,21 @@ def main() -> None:
     VOCAB_DIR.mkdir(parents=True, exist_ok=True)
     imagenet = shared_dir() / "data/imagenet_affordance"
     sets: dict[str, tuple[list[str], list[str]]] = {
-        "paper_static": ([normalize_verb(v) for v in split(PAPER_STATIC_VERBS)],
-                         [normalize_name(o) for o in split(PAPER_STATIC_OBJECTS)]),
-        "paper_realworld": ([normalize_verb(v) for v in split(PAPER_REAL_VERBS)],
-                            [normalize_name(o) for o in split(PAPER_REAL_OBJECTS)]),
+        "paper_static": (
+            [normalize_verb(v) for v in split(PAPER_STATIC_VERBS)],
+            [normalize_name(o) for o in split(PAPER_STATIC_OBJECTS)],
+        ),
+        "paper_realworld": (
+            [normalize_verb(v) for v in split(PAPER_REAL_VERBS)],
+            [normalize_name(o) for o in split(PAPER_REAL_OBJECTS)],
+        ),
         "imagenet": (
             [normalize_verb(v) for v in imagenet.joinpath("verbs.txt").read_text().split()],
-            [normalize_name(line.split("\t")[0]) for line in
-             imagenet.joinpath("objects.tsv").read_text().splitlines()[1:] if line.strip()],
+            [
+                normalize_name(line.split("\t")[0])
+                for line in imagenet.joinpath("objects.tsv").read_text().splitlines()[1:]
+                if line.strip()
+            ],
         ),
         "zhu": (list(ZHU_VERBS.values()), list(zhu_objects().values())),
         "sim": ([], [normalize_name(n) for n in SIM_OBJECTS.values()]),
@@ -118,7 +187,8 @@ def main() -> None:
     write("union_verbs.txt", sorted(set(all_verbs)))
     write("union_objects.txt", sorted(set(all_objects)))
     (VOCAB_DIR / "sim_assets.tsv").write_text(
-        "asset\tname\n" + "".join(f"{a}\t{normalize_name(n)}\n" for a, n in sorted(SIM_OBJECTS.items()))
+        "asset\tname\n"
+        + "".join(f"{a}\t{normalize_name(n)}\n" for a, n in sorted(SIM_OBJECTS.items()))
     )
     (VOCAB_DIR / "zhu_synsets.tsv").write_text(
         "synset\tname\n" + "".join(f"{s}\t{n}\n" for s, n in zhu_objects().items())

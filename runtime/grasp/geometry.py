@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 
 FloatArray = npt.NDArray[np.float64]
 DepthImage = npt.NDArray[np.float32] | npt.NDArray[np.float64]
@@ -184,6 +185,21 @@ def sample_depth(depth: DepthImage, center_xy: tuple[float, float], radius_px: i
         if valid.size:
             return float(np.median(valid))
     raise ValueError(f"no valid depth around pixel {center_xy}")
+
+
+def fill_invalid_depth(depth: DepthImage) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
+    """Replace holes (0, negative, NaN, inf) by the nearest valid depth; return the hole mask.
+
+    Holes are common at edges in real sensors; zeros would read as objects right at the lens.
+    """
+    d = np.asarray(depth, dtype=np.float32)
+    invalid: npt.NDArray[np.bool_] = ~np.isfinite(d) | (d <= 0)
+    if invalid.all():
+        raise ValueError("depth crop has no valid pixels")
+    if invalid.any():
+        _, (ri, ci) = ndimage.distance_transform_edt(invalid, return_indices=True)
+        d = d[ri, ci]
+    return d, invalid
 
 
 def _as_transform(cam_to_world: npt.ArrayLike) -> FloatArray:

@@ -105,8 +105,9 @@ def rectangle_iou(a: RectLike, b: RectLike) -> float:
     return inter / union if union > 0 else 0.0
 
 
-def max_iou(pred: RectLike, ground_truth: Iterable[RectLike], angle_threshold: float | None = None
-            ) -> float:
+def max_iou(
+    pred: RectLike, ground_truth: Iterable[RectLike], angle_threshold: float | None = None
+) -> float:
     """Best IoU of ``pred`` against the ground truth (optionally only angle-compatible ones)."""
     best = 0.0
     ang = rectangle_angle(pred)

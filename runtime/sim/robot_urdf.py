@@ -49,6 +49,8 @@ def _fix_cr3(root: ET.Element, meshes_dir: Path) -> None:
     for link in root.iter("link"):
         for i, material in enumerate(link.iter("material")):
             material.attrib["name"] = f"cr3_{link.attrib['name']}_{i}"
+        if link.find("inertial") is None:  # the fixed root "dummy_link": silences a loader warning
+            link.append(_inertial(0.001))
 
 
 def _hand_elements(panda_root: ET.Element, panda_dir: Path) -> list[ET.Element]:
@@ -84,13 +86,18 @@ def _fixed_joint(name: str, parent: str, child: str, xyz: str, rpy: str = "0 0 0
     return joint
 
 
-def _tcp_link() -> ET.Element:
-    """A tiny massless-ish link so getLinkState/IK can address the grasp point directly."""
-    link = ET.Element("link", name=TCP_LINK)
-    inertial = ET.SubElement(link, "inertial")
+def _inertial(mass: float) -> ET.Element:
+    inertial = ET.Element("inertial")
     ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
-    ET.SubElement(inertial, "mass", value="0.001")
+    ET.SubElement(inertial, "mass", value=f"{mass}")
     ET.SubElement(inertial, "inertia", ixx="1e-6", ixy="0", ixz="0", iyy="1e-6", iyz="0", izz="1e-6")
+    return inertial
+
+
+def _tcp_link() -> ET.Element:
+    """A tiny near-massless link so getLinkState/IK can address the grasp point directly."""
+    link = ET.Element("link", name=TCP_LINK)
+    link.append(_inertial(0.001))
     return link
 
 

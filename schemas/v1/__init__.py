@@ -12,10 +12,10 @@ from craft_e.schemas.v1.bundle import (
 from craft_e.schemas.v1.payloads import (
     ObjectProperties,
     PropertyScore,
+    RankedObject,
     ScoredProperty,
     VerbObjects,
     VerbProperties,
-    RankedObject,
 )
 from craft_e.schemas.v1.records import Record, RecordRequest
 

@@ -11,9 +11,8 @@ from __future__ import annotations
 import hashlib
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
-
 from craft_e.schemas.v1.records import canonical_json
+from pydantic import BaseModel, ConfigDict, Field
 
 MANIFEST_SCHEMA_ID = "https://craft-e.dev/schemas/v1/manifest.json"
 REPORT_SCHEMA_ID = "https://craft-e.dev/schemas/v1/report.json"
@@ -66,7 +65,9 @@ class EnergyInfo(_Frozen):
 
 
 class Manifest(_Frozen):
-    schema_id: Literal["https://craft-e.dev/schemas/v1/manifest.json"] = MANIFEST_SCHEMA_ID
+    schema_id: Literal["https://craft-e.dev/schemas/v1/manifest.json"] = (
+        "https://craft-e.dev/schemas/v1/manifest.json"
+    )
     schema_version: Literal[1] = 1
     kb_name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]*$")
     kb_version: str = Field(pattern=r"^\d+\.\d+\.\d+$")
@@ -102,7 +103,9 @@ class Coverage(_Frozen):
 
 
 class BundleReport(_Frozen):
-    schema_id: Literal["https://craft-e.dev/schemas/v1/report.json"] = REPORT_SCHEMA_ID
+    schema_id: Literal["https://craft-e.dev/schemas/v1/report.json"] = (
+        "https://craft-e.dev/schemas/v1/report.json"
+    )
     kb_name: str
     counts: dict[str, int]
     pass_counts: dict[str, dict[str, int]] = Field(

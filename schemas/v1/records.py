@@ -41,7 +41,9 @@ class RecordRequest(BaseModel):
     messages: list[Message]
     params: dict[str, Any] = Field(default_factory=dict, description="decoding parameters")
     response_schema: dict[str, Any] = Field(default_factory=dict)
-    subject: str = Field(description="the verb or object the prompt asks about (an index, in the key)")
+    subject: str = Field(
+        description="the verb or object the prompt asks about (an index, in the key)"
+    )
     variables: dict[str, Any] = Field(
         default_factory=dict, description="template variables (e.g. the named property set)"
     )
@@ -56,7 +58,9 @@ class Record(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    schema_id: Literal["https://craft-e.dev/schemas/v1/record.json"] = RECORD_SCHEMA_ID
+    schema_id: Literal["https://craft-e.dev/schemas/v1/record.json"] = (
+        "https://craft-e.dev/schemas/v1/record.json"
+    )
     key: str = Field(pattern=r"^[0-9a-f]{64}$")
     source: str = Field(description="cache folder: llm, conceptnet, ...")
     request: RecordRequest

@@ -1,0 +1,117 @@
+"""From the four network maps to ranked grasp rectangles, as the original repositories do it.
+
+Steps (GG-CNN ``post_process_output`` + ``detect_grasps``; GR-ConvNet copies them):
+angle = ½·atan2(sin, cos); width in pixels = width map × the training normalisation; Gaussian
+smoothing of quality (σ=2), angle (σ=2) and width (σ=1), edge mode "nearest", truncate 4 (scikit-image
+``gaussian`` defaults, reproduced with scipy so scikit-image is not needed); then local maxima of
+quality at least ``min_distance`` apart and above 0.2, strongest first. The opening is the width
+map at the peak, the jaw size half of it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from scipy import ndimage
+
+from .base import GraspMaps
+from .geometry import Grasp2D, wrap_half_pi
+
+Float32Array = npt.NDArray[np.float32]
+BoolArray = npt.NDArray[np.bool_]
+IntArray = npt.NDArray[np.intp]
+
+
+@dataclass(frozen=True)
+class ProcessedMaps:
+    """Smoothed per-pixel grasp maps of one image, each ``[S, S]`` (network input pixels)."""
+
+    quality: Float32Array
+    angle: Float32Array
+    width_px: Float32Array
+
+
+def post_process(maps: GraspMaps, width_scale_px: float, index: int = 0) -> ProcessedMaps:
+    """Raw network maps (batch element ``index``) → smoothed quality, angle and width maps."""
+    with torch.no_grad():
+        q = maps.pos[index, 0].detach().cpu().numpy().astype(np.float64)  # [S, S]
+        ang = (torch.atan2(maps.sin[index, 0], maps.cos[index, 0]) / 2.0).cpu().numpy()  # [S, S]
+        width = maps.width[index, 0].detach().cpu().numpy().astype(np.float64) * width_scale_px
+    q = ndimage.gaussian_filter(q, 2.0, mode="nearest", truncate=4.0)
+    ang = ndimage.gaussian_filter(ang.astype(np.float64), 2.0, mode="nearest", truncate=4.0)
+    width = ndimage.gaussian_filter(width, 1.0, mode="nearest", truncate=4.0)
+    return ProcessedMaps(q.astype(np.float32), ang.astype(np.float32), width.astype(np.float32))
+
+
+def find_peaks(
+    image: npt.NDArray[np.floating[npt.NBitBase]] | Float32Array,
+    min_distance: int = 20,
+    threshold: float = 0.2,
+    num_peaks: int | None = None,
+    exclude_border: bool = True,
+) -> IntArray:
+    """Local maxima ``[N, 2]`` as (row, col), strongest first — ``skimage.peak_local_max``.
+
+    A pixel is a peak if it equals the maximum of its ``(2·min_distance+1)²`` window and exceeds
+    ``threshold``; peaks closer than ``min_distance`` to the border are dropped (as the original,
+    since the maps are unreliable there); equal-valued neighbours within ``min_distance``
+    (Chebyshev) are thinned greedily.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    size = 2 * min_distance + 1
+    local_max = ndimage.maximum_filter(img, size=size, mode="nearest")
+    peaks = img == local_max
+    if peaks.all():  # a constant image has no peaks
+        return np.zeros((0, 2), dtype=np.intp)
+    peaks &= img > threshold
+    if exclude_border and min_distance > 0:
+        b = min_distance
+        peaks[:b] = False
+        peaks[-b:] = False
+        peaks[:, :b] = False
+        peaks[:, -b:] = False
+    coords = np.argwhere(peaks)  # [N, 2] row-major order
+    order = np.argsort(img[peaks], kind="stable")[::-1]
+    chosen: list[npt.NDArray[np.intp]] = []
+    for rc in coords[order]:
+        if all(np.abs(rc - other).max() > min_distance for other in chosen):
+            chosen.append(rc)
+            if num_peaks is not None and len(chosen) >= num_peaks:
+                break
+    return np.array(chosen, dtype=np.intp).reshape(-1, 2)
+
+
+def detect_grasps(
+    maps: ProcessedMaps,
+    max_grasps: int = 5,
+    min_distance: int = 20,
+    min_quality: float = 0.2,
+    mask: BoolArray | None = None,
+) -> list[Grasp2D]:
+    """Grasps at the quality peaks, in network-input pixel coordinates.
+
+    With a ``mask`` the quality outside it is zeroed *before* peak finding, so the grasps returned
+    are the best ones whose centre lies on the region (filtering afterwards could leave none when
+    a neighbouring object holds the strongest peaks).
+    """
+    q = maps.quality
+    if mask is not None:
+        if mask.shape != q.shape:
+            raise ValueError(f"mask shape {mask.shape} differs from map shape {q.shape}")
+        q = np.where(mask, q, np.float32(0.0))
+    grasps: list[Grasp2D] = []
+    for row, col in find_peaks(q, min_distance, min_quality, num_peaks=max_grasps):
+        width = max(float(maps.width_px[row, col]), 0.0)
+        grasps.append(
+            Grasp2D(
+                center_xy=(float(col), float(row)),
+                angle_rad=wrap_half_pi(float(maps.angle[row, col])),
+                width_px=width,
+                length_px=width / 2.0,
+                quality=float(np.clip(q[row, col], 0.0, 1.0)),
+            )
+        )
+    return grasps

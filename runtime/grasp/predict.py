@@ -1,0 +1,196 @@
+"""One entry point for every grasp backend: full-resolution RGB-D in, grasp rectangles out.
+
+Pre-processing follows the original repositories so the Cornell-trained weights see what they
+were trained on: a square crop at the native pixel scale (GR-ConvNet's ``CameraData`` crops the
+centre 224×224 of a 640×480 frame; GG-CNN crops 300×300), invalid depth filled in (the originals
+in-paint with OpenCV; here nearest valid value), depth in metres minus its mean and clipped to
+±1, RGB scaled to [0, 1] minus its mean, GR-ConvNet channels ordered (depth, r, g, b). With a
+mask the crop is centred on the region, and grown (then resized) only if the region does not fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+import torch
+import torch.nn.functional as F
+
+from .antipodal import AntipodalConfig, sample_antipodal_grasps
+from .base import GraspNet
+from .geometry import CameraIntrinsics, Grasp2D, fill_invalid_depth
+from .postprocess import ProcessedMaps, detect_grasps, post_process
+from .registry import GraspModelSpec, get_spec, load
+
+Backend = Literal["grconvnet", "ggcnn", "ggcnn2", "antipodal"]
+BACKENDS: tuple[str, ...] = ("grconvnet", "ggcnn", "ggcnn2", "antipodal")
+
+RGBImage = npt.NDArray[np.uint8]
+DepthImage = npt.NDArray[np.float32] | npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+Float32Array = npt.NDArray[np.float32]
+
+MASK_MARGIN = 1.25  # crop side ≥ 1.25 × the mask's bounding box, so the fingers' free space shows
+
+
+@dataclass(frozen=True)
+class CropWindow:
+    """A square image window ``[y0:y0+side, x0:x0+side]`` resized to ``out_size``²."""
+
+    x0: int
+    y0: int
+    side: int
+    out_size: int
+
+    @property
+    def scale(self) -> float:
+        """Image pixels per network pixel."""
+        return self.side / self.out_size
+
+    def to_image(self, grasp: Grasp2D) -> Grasp2D:
+        """Network-pixel grasp → full-image grasp (pixel centres map as in bilinear resizing)."""
+        s = self.scale
+        return grasp.scaled(s, (self.x0 + 0.5 * s - 0.5, self.y0 + 0.5 * s - 0.5))
+
+    def sample_mask(self, mask: BoolArray) -> BoolArray:
+        """The mask at the network pixels' centres (nearest neighbour), ``[S, S]``."""
+        idx = np.floor((np.arange(self.out_size) + 0.5) * self.scale).astype(np.intp)
+        idx = np.minimum(idx, self.side - 1)
+        sub = mask[self.y0 : self.y0 + self.side, self.x0 : self.x0 + self.side]
+        out: BoolArray = sub[np.ix_(idx, idx)]
+        return out
+
+
+def choose_crop(
+    image_hw: tuple[int, int],
+    out_size: int,
+    mask: BoolArray | None = None,
+    crop_size: int | None = None,
+) -> CropWindow:
+    """Square crop at native scale (``crop_size`` defaults to the network size), centred on the
+    mask's bounding box if given, else on the image; clamped inside the image."""
+    h, w = image_hw
+    side = min(crop_size or out_size, h, w)
+    cx, cy = w / 2.0, h / 2.0
+    if mask is not None:
+        if mask.shape != (h, w):
+            raise ValueError(f"mask shape {mask.shape} differs from image shape {(h, w)}")
+        rows, cols = np.nonzero(mask)
+        if rows.size == 0:
+            raise ValueError("mask is empty: no region to grasp")
+        y_lo, y_hi, x_lo, x_hi = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+        cx, cy = (x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0
+        side = min(max(side, int(np.ceil(MASK_MARGIN * max(x_hi - x_lo, y_hi - y_lo)))), h, w)
+    x0 = int(np.clip(round(cx - side / 2.0), 0, w - side))
+    y0 = int(np.clip(round(cy - side / 2.0), 0, h - side))
+    return CropWindow(x0, y0, side, out_size)
+
+
+def _resize(img: Float32Array, out_size: int) -> torch.Tensor:
+    """``[C, H, W]`` → ``[1, C, S, S]`` bilinear (antialiased when shrinking, like skimage)."""
+    t = torch.from_numpy(np.ascontiguousarray(img)).unsqueeze(0)  # [1, C, H, W]
+    if t.shape[-1] == out_size and t.shape[-2] == out_size:
+        return t
+    shrink = t.shape[-1] > out_size
+    return F.interpolate(
+        t, size=(out_size, out_size), mode="bilinear", align_corners=False, antialias=shrink
+    )
+
+
+def prepare_input(
+    spec: GraspModelSpec, rgb: RGBImage | None, depth: DepthImage, window: CropWindow
+) -> tuple[torch.Tensor, BoolArray]:
+    """Full image → network tensor ``[1, C, S, S]`` and the resized hole mask ``[S, S]``."""
+    sl = (
+        slice(window.y0, window.y0 + window.side),
+        slice(window.x0, window.x0 + window.side),
+    )
+    d, holes = fill_invalid_depth(np.asarray(depth)[sl])
+    d_t = _resize(d[None], window.out_size)  # [1, 1, S, S]
+    d_t = torch.clamp(d_t - d_t.mean(), -1.0, 1.0)
+    hole_mask = window.sample_mask(np.pad(holes, ((window.y0, 0), (window.x0, 0))))
+    if spec.net_class.modality == "depth":
+        return d_t, hole_mask
+    if rgb is None:
+        raise ValueError(f"backend {spec.name!r} needs an RGB image")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[:2] != np.asarray(depth).shape:
+        raise ValueError(f"rgb must be HxWx3 matching the depth image, got {rgb.shape}")
+    c = rgb[sl].astype(np.float32).transpose(2, 0, 1) / 255.0  # [3, side, side]
+    c_t = _resize(c, window.out_size)  # [1, 3, S, S]
+    c_t = c_t - c_t.mean()
+    return torch.cat([d_t, c_t], dim=1), hole_mask  # [1, 4, S, S]: depth, r, g, b
+
+
+@cache
+def _cached_model(name: str, device: str) -> GraspNet:
+    return load(name, device=device)
+
+
+def predict_maps(
+    name: str,
+    rgb: RGBImage | None,
+    depth: DepthImage,
+    mask: BoolArray | None = None,
+    crop_size: int | None = None,
+    device: str = "cpu",
+) -> tuple[ProcessedMaps, CropWindow, BoolArray | None]:
+    """Run a network on the crop; return its smoothed maps, the crop, and the region mask in
+    network pixels (the mask without depth holes, or just the valid-depth pixels)."""
+    spec = get_spec(name)
+    d = np.asarray(depth)
+    if d.ndim != 2:
+        raise ValueError(f"depth must be HxW, got shape {d.shape}")
+    window = choose_crop(d.shape, spec.input_size, mask, crop_size)  # type: ignore[arg-type]
+    x, holes = prepare_input(spec, rgb, d, window)
+    model = _cached_model(name, str(device))
+    with torch.inference_mode():
+        out = model(x.to(device))
+    maps = post_process(out, spec.width_scale_px)
+    region = ~holes if mask is None else window.sample_mask(mask) & ~holes
+    return maps, window, region
+
+
+def predict_grasps(
+    backend: str,
+    rgb: RGBImage | None,
+    depth: DepthImage,
+    mask: BoolArray | None = None,
+    max_grasps: int = 5,
+    *,
+    intrinsics: CameraIntrinsics | None = None,
+    min_quality: float = 0.2,
+    crop_size: int | None = None,
+    device: str = "cpu",
+    antipodal_config: AntipodalConfig | None = None,
+) -> list[Grasp2D]:
+    """Grasp rectangles in full-image pixels, best first, quality in [0, 1].
+
+    ``depth`` is metric (metres). With ``mask`` every returned grasp has its centre on the mask.
+    ``intrinsics`` only matter to the antipodal sampler (millimetres ↔ pixels); the default is
+    RealSense-like for the image size. ``min_quality`` is the networks' peak threshold (0.2 in
+    the originals); an empty list means no grasp above it.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown grasp backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    d = np.asarray(depth)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+    if backend == "antipodal":
+        intr = intrinsics or CameraIntrinsics.realsense_d435(d.shape[1], d.shape[0])
+        return sample_antipodal_grasps(d, mask, intr, max_grasps, antipodal_config)
+    maps, window, region = predict_maps(backend, rgb, d, mask, crop_size, device)
+    found = detect_grasps(maps, max_grasps, min_quality=min_quality, mask=region)
+    grasps = [window.to_image(g) for g in found]
+    if mask is not None:  # resampling can move a centre off a thin mask by a pixel: re-check
+        h, w = mask.shape
+        grasps = [
+            g
+            for g in grasps
+            if mask[
+                min(max(round(g.center_xy[1]), 0), h - 1), min(max(round(g.center_xy[0]), 0), w - 1)
+            ]
+        ]
+    return grasps
