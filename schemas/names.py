@@ -108,6 +108,8 @@ _INVARIANT = {
     "alias",
     "ibis",
     "pelvis",
+    "rhinoceros",
+    "hippopotamus",
     "kudos",
     "cosmos",
     "chaos",
