@@ -176,7 +176,7 @@ def sample_depth(depth: DepthImage, center_xy: tuple[float, float], radius_px: i
     Single pixels are often holes (0 or NaN) at object edges in real depth images.
     """
     h, w = depth.shape
-    u, v = int(round(center_xy[0])), int(round(center_xy[1]))
+    u, v = round(center_xy[0]), round(center_xy[1])
     if not (0 <= u < w and 0 <= v < h):
         raise ValueError(f"grasp centre {center_xy} lies outside the {w}x{h} depth image")
     for r in (radius_px, 2 * radius_px + 1, 4 * radius_px + 3):
@@ -195,7 +195,7 @@ def fill_invalid_depth(depth: DepthImage) -> tuple[npt.NDArray[np.float32], npt.
     d = np.asarray(depth, dtype=np.float32)
     invalid: npt.NDArray[np.bool_] = ~np.isfinite(d) | (d <= 0)
     if invalid.all():
-        raise ValueError("depth crop has no valid pixels")
+        raise ValueError("depth image has no valid pixels (all 0, negative or NaN)")
     if invalid.any():
         _, (ri, ci) = ndimage.distance_transform_edt(invalid, return_indices=True)
         d = d[ri, ci]

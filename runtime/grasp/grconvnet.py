@@ -31,7 +31,8 @@ class ResidualBlock(nn.Module):
     def forward(self, x_in: torch.Tensor) -> torch.Tensor:
         x = F.relu(self.bn1(self.conv1(x_in)))  # [B, C, H, W]
         x = self.bn2(self.conv2(x))  # [B, C, H, W]
-        return x + x_in
+        out: torch.Tensor = x + x_in
+        return out
 
 
 class GenerativeResnet(GraspNet):

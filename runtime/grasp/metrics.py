@@ -72,28 +72,32 @@ def _ccw(poly: FloatArray) -> FloatArray:
     return poly if signed >= 0 else poly[::-1]
 
 
+def _clip_half_plane(
+    poly: list[tuple[float, float]], a: FloatArray, b: FloatArray
+) -> list[tuple[float, float]]:
+    """Keep the part of ``poly`` left of the directed line a→b (inside of a CCW clip edge)."""
+    ex, ey = float(b[0] - a[0]), float(b[1] - a[1])
+    sides = [ex * (p[1] - float(a[1])) - ey * (p[0] - float(a[0])) for p in poly]
+    out: list[tuple[float, float]] = []
+    for j, p in enumerate(poly):
+        q = poly[(j + 1) % len(poly)]
+        sp, sq = sides[j], sides[(j + 1) % len(poly)]
+        if sp >= 0:
+            out.append(p)
+        if (sp >= 0) != (sq >= 0):
+            t = sp / (sp - sq)
+            out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
+    return out
+
+
 def clip_convex_polygon(subject: FloatArray, clip: FloatArray) -> FloatArray:
     """Sutherland–Hodgman: the part of ``subject`` inside the convex polygon ``clip``."""
-    out = [tuple(p) for p in _ccw(subject)]
+    out = [(float(x), float(y)) for x, y in _ccw(subject)]
     c = _ccw(clip)
     for i in range(len(c)):
         if not out:
             break
-        a, b = c[i], c[(i + 1) % len(c)]
-        ex, ey = b[0] - a[0], b[1] - a[1]
-
-        def side(p: tuple[float, ...], ax: float = a[0], ay: float = a[1]) -> float:
-            return float(ex * (p[1] - ay) - ey * (p[0] - ax))  # > 0: left of a→b (inside)
-
-        inp, out = out, []
-        for j in range(len(inp)):
-            p, q = inp[j], inp[(j + 1) % len(inp)]
-            sp, sq = side(p), side(q)
-            if sp >= 0:
-                out.append(p)
-            if (sp >= 0) != (sq >= 0):
-                t = sp / (sp - sq)
-                out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
+        out = _clip_half_plane(out, c[i], c[(i + 1) % len(c)])
     return np.array(out, dtype=np.float64).reshape(-1, 2)
 
 

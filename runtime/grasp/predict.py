@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -26,7 +26,7 @@ from .postprocess import ProcessedMaps, detect_grasps, post_process
 from .registry import GraspModelSpec, get_spec, load
 
 Backend = Literal["grconvnet", "ggcnn", "ggcnn2", "antipodal"]
-BACKENDS: tuple[str, ...] = ("grconvnet", "ggcnn", "ggcnn2", "antipodal")
+BACKENDS: tuple[str, ...] = get_args(Backend)
 
 RGBImage = npt.NDArray[np.uint8]
 DepthImage = npt.NDArray[np.float32] | npt.NDArray[np.float64]
@@ -55,12 +55,16 @@ class CropWindow:
         s = self.scale
         return grasp.scaled(s, (self.x0 + 0.5 * s - 0.5, self.y0 + 0.5 * s - 0.5))
 
-    def sample_mask(self, mask: BoolArray) -> BoolArray:
-        """The mask at the network pixels' centres (nearest neighbour), ``[S, S]``."""
+    @property
+    def slices(self) -> tuple[slice, slice]:
+        """Row and column slices of the window in the full image."""
+        return slice(self.y0, self.y0 + self.side), slice(self.x0, self.x0 + self.side)
+
+    def resample_mask(self, crop_mask: BoolArray) -> BoolArray:
+        """A ``[side, side]`` crop mask at the network pixels' centres (nearest), ``[S, S]``."""
         idx = np.floor((np.arange(self.out_size) + 0.5) * self.scale).astype(np.intp)
         idx = np.minimum(idx, self.side - 1)
-        sub = mask[self.y0 : self.y0 + self.side, self.x0 : self.x0 + self.side]
-        out: BoolArray = sub[np.ix_(idx, idx)]
+        out: BoolArray = crop_mask[np.ix_(idx, idx)]
         return out
 
 
@@ -104,14 +108,11 @@ def prepare_input(
     spec: GraspModelSpec, rgb: RGBImage | None, depth: DepthImage, window: CropWindow
 ) -> tuple[torch.Tensor, BoolArray]:
     """Full image → network tensor ``[1, C, S, S]`` and the resized hole mask ``[S, S]``."""
-    sl = (
-        slice(window.y0, window.y0 + window.side),
-        slice(window.x0, window.x0 + window.side),
-    )
-    d, holes = fill_invalid_depth(np.asarray(depth)[sl])
+    sl = window.slices
+    d, holes = fill_invalid_depth(np.asarray(depth, dtype=np.float32)[sl])
     d_t = _resize(d[None], window.out_size)  # [1, 1, S, S]
     d_t = torch.clamp(d_t - d_t.mean(), -1.0, 1.0)
-    hole_mask = window.sample_mask(np.pad(holes, ((window.y0, 0), (window.x0, 0))))
+    hole_mask = window.resample_mask(holes)
     if spec.net_class.modality == "depth":
         return d_t, hole_mask
     if rgb is None:
@@ -136,20 +137,20 @@ def predict_maps(
     mask: BoolArray | None = None,
     crop_size: int | None = None,
     device: str = "cpu",
-) -> tuple[ProcessedMaps, CropWindow, BoolArray | None]:
+) -> tuple[ProcessedMaps, CropWindow, BoolArray]:
     """Run a network on the crop; return its smoothed maps, the crop, and the region mask in
     network pixels (the mask without depth holes, or just the valid-depth pixels)."""
     spec = get_spec(name)
-    d = np.asarray(depth)
+    d = np.asarray(depth, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"depth must be HxW, got shape {d.shape}")
-    window = choose_crop(d.shape, spec.input_size, mask, crop_size)  # type: ignore[arg-type]
+    window = choose_crop((d.shape[0], d.shape[1]), spec.input_size, mask, crop_size)
     x, holes = prepare_input(spec, rgb, d, window)
     model = _cached_model(name, str(device))
     with torch.inference_mode():
         out = model(x.to(device))
     maps = post_process(out, spec.width_scale_px)
-    region = ~holes if mask is None else window.sample_mask(mask) & ~holes
+    region = ~holes if mask is None else window.resample_mask(mask[window.slices]) & ~holes
     return maps, window, region
 
 
@@ -175,22 +176,24 @@ def predict_grasps(
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown grasp backend {backend!r}; choose one of {', '.join(BACKENDS)}")
-    d = np.asarray(depth)
+    d = np.asarray(depth, dtype=np.float32)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
     if backend == "antipodal":
         intr = intrinsics or CameraIntrinsics.realsense_d435(d.shape[1], d.shape[0])
         return sample_antipodal_grasps(d, mask, intr, max_grasps, antipodal_config)
     maps, window, region = predict_maps(backend, rgb, d, mask, crop_size, device)
-    found = detect_grasps(maps, max_grasps, min_quality=min_quality, mask=region)
+    # with a mask, ask for spare peaks: resampling can move a centre off a thin mask by a pixel
+    n_peaks = max_grasps if mask is None else 2 * max_grasps
+    found = detect_grasps(maps, n_peaks, min_quality=min_quality, mask=region)
     grasps = [window.to_image(g) for g in found]
-    if mask is not None:  # resampling can move a centre off a thin mask by a pixel: re-check
-        h, w = mask.shape
-        grasps = [
-            g
-            for g in grasps
-            if mask[
-                min(max(round(g.center_xy[1]), 0), h - 1), min(max(round(g.center_xy[0]), 0), w - 1)
-            ]
-        ]
-    return grasps
+    if mask is not None:
+        grasps = [g for g in grasps if _centre_in_mask(g, mask)]
+    return grasps[:max_grasps]
+
+
+def _centre_in_mask(grasp: Grasp2D, mask: BoolArray) -> bool:
+    h, w = mask.shape
+    col = min(max(round(grasp.center_xy[0]), 0), w - 1)
+    row = min(max(round(grasp.center_xy[1]), 0), h - 1)
+    return bool(mask[row, col])

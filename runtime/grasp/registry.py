@@ -13,9 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file
-
 from craft_e.paths import shared_dir
+from safetensors.torch import load_file
 
 from .base import GraspNet
 from .ggcnn import GGCNN, GGCNN2
