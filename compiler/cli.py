@@ -80,6 +80,10 @@ def build(
             help="llm (two-stage property KB) | conceptnet (CRAFT baseline) | direct (direct-LLM baseline)."
         ),
     ] = "llm",
+    conceptnet: Annotated[
+        str,
+        typer.Option(help="With --mode conceptnet: omcs (offline default) | csv:<dump.csv[.gz]> | api[:<base_url>]."),
+    ] = "omcs",
     overrides: Annotated[
         Path | None, typer.Option(help="TOML file of edits compiled with provenance 'override'.")
     ] = None,
@@ -136,6 +140,7 @@ def build(
             model=model_id,
             cache_root=cache,
             overrides_file=overrides,
+            conceptnet=conceptnet,
             tau=(0.0 if mode == "direct" else 0.5) if tau is None else tau,
             energy_form=energy_form,
         )

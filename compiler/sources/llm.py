@@ -32,7 +32,15 @@ class MissingRecordError(SourceError):
 
 
 class TransportError(SourceError):
-    """The transport failed in a way worth retrying (timeouts, 429, 5xx, cut connections)."""
+    """The transport failed in a way worth retrying (timeouts, 429, 5xx, cut connections).
+
+    ``retry_after`` carries a server's bounded Retry-After hint (seconds), so the retry loop
+    waits at least that long instead of hammering a rate-limited endpoint.
+    """
+
+    def __init__(self, message: str, retry_after: float | None = None) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
 
 
 class FatalTransportError(SourceError):
@@ -43,6 +51,7 @@ class Transport(Protocol):
     """Sends one rendered request to a live model and returns the model's text answer."""
 
     provider: str
+    model: str
 
     def complete(self, request: RecordRequest) -> str: ...
 
@@ -144,7 +153,7 @@ class LLMSource:
                 raise
             except TransportError as exc:
                 failures.append(f"attempt {attempt}: {exc}")
-                self._backoff(attempt)
+                self._backoff(attempt, exc.retry_after)
                 continue
             try:
                 payload = model.model_validate(extract_json(raw))
@@ -167,9 +176,12 @@ class LLMSource:
             f"subject={call.subject!r} after {self.max_attempts} attempts: " + "; ".join(failures)
         )
 
-    def _backoff(self, attempt: int) -> None:
+    def _backoff(self, attempt: int, retry_after: float | None = None) -> None:
         if attempt >= self.max_attempts:
             return
         import time
 
-        (self.sleep or time.sleep)(self.backoff_s * 2 ** (attempt - 1))
+        delay = self.backoff_s * 2 ** (attempt - 1)
+        if retry_after is not None:
+            delay = max(delay, retry_after)
+        (self.sleep or time.sleep)(delay)
