@@ -76,12 +76,33 @@ class MiniLMTextEncoder:
 
     def embed(self, texts: list[str]) -> npt.NDArray[np.float32]:
         """Unit-norm embeddings, ``[len(texts), 384]`` float32, one text per forward pass."""
+        import torch
+
         out = np.zeros((len(texts), MINILM_DIM), dtype=np.float32)
-        for i, text in enumerate(texts):
-            vec = self._model.encode([text], batch_size=1, convert_to_numpy=True,
-                                     normalize_embeddings=True, show_progress_bar=False)
-            out[i] = np.asarray(vec[0], dtype=np.float32)  # [384]
+        # One phrase is a tiny matmul: extra intra-op threads only contend (20x slower on a
+        # busy 2-core machine), so run single-threaded and restore the caller's setting.
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for i, text in enumerate(texts):
+                vec = self._model.encode([text], batch_size=1, convert_to_numpy=True,
+                                         normalize_embeddings=True, show_progress_bar=False)
+                out[i] = np.asarray(vec[0], dtype=np.float32)  # [384]
+        finally:
+            torch.set_num_threads(threads)
         return out
+
+    def embed_batched(self, texts: list[str], batch_size: int = 64) -> npt.NDArray[np.float32]:
+        """Like ``embed`` but ``batch_size`` texts per pass (~20x faster on CPU).
+
+        Padding makes the last bits depend on the batch, so this is for runtime caches (e.g. the
+        1000 ImageNet class names of the ConSE encoder), never for bundle contents.
+        """
+        if not texts:
+            return np.zeros((0, MINILM_DIM), dtype=np.float32)
+        vecs = self._model.encode(list(texts), batch_size=batch_size, convert_to_numpy=True,
+                                  normalize_embeddings=True, show_progress_bar=False)
+        return np.asarray(vecs, dtype=np.float32)  # [N, 384]
 
 
 @cache
