@@ -34,12 +34,13 @@ from craft_e.compiler.vocab import Vocabulary, read_vocabulary
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
 from craft_e.runtime.energies import EnergyForm, affordance_energy_matrix
 from craft_e.schemas.v1.bundle import (
+    UNSEALED,
     BuildInfo,
     BundleReport,
     EnergyInfo,
     Manifest,
     TextEncoderInfo,
-    content_hash,
+    sealed,
 )
 from pydantic import BaseModel, ConfigDict
 from safetensors.numpy import save as save_safetensors
@@ -193,7 +194,7 @@ def build(
     manifest = Manifest(
         kb_name=config.name,
         kb_version=config.kb_version,
-        content_sha256=content_hash(digests),
+        content_sha256=UNSEALED,
         files=digests,
         sources=draft.sources,
         text_encoder=TextEncoderInfo(
@@ -207,6 +208,7 @@ def build(
         objects=draft.objects,
         properties=properties,
     )
+    manifest = sealed(manifest)
     duration = time.perf_counter() - started
     info = BuildInfo(
         created_at=datetime.now(UTC).isoformat(timespec="seconds"),

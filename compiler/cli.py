@@ -210,29 +210,35 @@ def diff(
     fail_on: Annotated[
         list[str] | None,
         typer.Option(
-            "--fail-on", help="Gate: top1-changed | verb-removed | edges-removed>N | any-change."
+            "--fail-on",
+            help="Gate: top1-changed | verb-removed | any-change | edges-removed>N | "
+            "weight-changes>N (repeatable).",
         ),
     ] = None,
 ) -> None:
     """Structural and behavioural differences between two bundles (Markdown for a PR)."""
-    from craft_e.compiler.diff import DiffError, diff_bundles, gate_failures, render_markdown
+    from craft_e.compiler.diff import (
+        DiffError,
+        diff_bundles,
+        gate_failures,
+        parse_rules,
+        render_markdown,
+    )
     from craft_e.runtime.bundle import BundleError, load_bundle
 
-    try:
-        a, b = load_bundle(old, check_encoder=False), load_bundle(new, check_encoder=False)
-    except BundleError as exc:
-        fail(str(exc), EXIT_BAD_INPUT)
-    result = diff_bundles(a, b, top_k=top_k, threshold=threshold)
-    if format == "json":
-        stdout.print_json(json.dumps(result))
-    elif format == "md":
-        sys.stdout.write(render_markdown(result))
-    else:
+    if format not in ("md", "json"):
         fail(f"unknown format {format!r}; use md or json")
     try:
+        parse_rules(fail_on or [])  # a typo in a gate fails before any output, not after
+        a, b = load_bundle(old, check_encoder=False), load_bundle(new, check_encoder=False)
+        result = diff_bundles(a, b, top_k=top_k, threshold=threshold)
         failures = gate_failures(result, fail_on or [])
-    except DiffError as exc:
-        fail(str(exc))
+    except (BundleError, DiffError) as exc:
+        fail(str(exc), EXIT_BAD_INPUT)
+    if format == "json":
+        stdout.print_json(json.dumps(result))
+    else:
+        sys.stdout.write(render_markdown(result))
     for failure in failures:
         err.print(f"[bold red]gate failed:[/] {failure}", highlight=False)
     if failures:
@@ -374,6 +380,16 @@ def curate_pending(
     except SourceError as exc:
         fail(str(exc), EXIT_SOURCE_FAILED)
     sys.stdout.write(json.dumps(pending, indent=1) + "\n")
+
+
+def _register_extensions() -> None:
+    """Commands that live in their own modules (packing/signing)."""
+    from craft_e.compiler.cli_pack import register as register_pack
+
+    register_pack(app)
+
+
+_register_extensions()
 
 
 def main() -> None:  # pragma: no cover - console entry

@@ -34,7 +34,13 @@ class CurationResult:
 
 def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
     rows: list[tuple[int, dict[str, object]]] = []
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CurationError(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise CurationError(f"{path}: not valid UTF-8 (at byte {exc.start}); re-save it as UTF-8") from None
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("//"):
             continue
         try:
@@ -123,7 +129,11 @@ def record_answers(
                     )
             else:
                 raise CurationError(f"unknown prompt id {prompt_id!r}")
-        except ValidationError as exc:
+        except CurationError:
+            raise
+        except ValueError as exc:
+            if not isinstance(exc, ValidationError):
+                raise CurationError(f"{where}: {exc}; use plain lowercase names") from None
             first = exc.errors()[0]
             raise CurationError(
                 f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}"

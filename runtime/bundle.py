@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -21,7 +22,6 @@ from craft_e.schemas.v1.bundle import (
     BUNDLE_FILES,
     MANIFEST_FILE,
     BundleReport,
-    FileDigest,
     Manifest,
     content_hash,
 )
@@ -109,7 +109,7 @@ def read_manifest(folder: Path) -> Manifest:
         raw = json.loads(path.read_bytes())
     except FileNotFoundError:
         raise BundleError(f"{path}: missing; this folder is not a CRAFT-E bundle") from None
-    except ValueError as exc:
+    except (ValueError, RecursionError) as exc:
         raise BundleError(f"{path}: not valid JSON ({exc}); rebuild the bundle") from None
     version = raw.get("schema_version") if isinstance(raw, dict) else None
     if version not in SUPPORTED_SCHEMA_VERSIONS:
@@ -146,27 +146,38 @@ def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
                 "or re-install the bundle"
             )
         data[name] = blob
-    actual = content_hash(
-        {n: FileDigest(sha256=d.sha256, bytes=d.bytes) for n, d in manifest.files.items()}
-    )
-    if actual != manifest.content_sha256:
-        raise BundleError(f"{folder / MANIFEST_FILE}: content_sha256 does not match its file table")
+    if content_hash(manifest) != manifest.content_sha256:
+        raise BundleError(
+            f"{folder / MANIFEST_FILE}: content_sha256 does not match the manifest (a field was "
+            "edited after the build); rebuild or re-install the bundle"
+        )
     return data
 
 
 def load_bundle(
-    path: Path | str, *, check_encoder: bool = True, encoder_id: str | None = None
+    path: Path | str,
+    *,
+    check_encoder: bool = True,
+    encoder_id: str | None = None,
+    trusted_keys: Sequence[bytes | str] | None = None,
 ) -> Bundle:
-    """Verify and load a bundle folder.
+    """Verify and load a bundle folder, or a signed ``.craft`` file.
 
     With ``check_encoder`` the bundle's text encoder must be the runtime's (``encoder_id``,
     default minilm-l6-v2 with its pinned weights hash): embeddings from another space would
-    silently produce wrong cosines.
+    silently produce wrong cosines. A file is a packed bundle: it is used only if signed by one
+    of ``trusted_keys`` (see ``runtime/package.py``), verified and unpacked privately first.
     """
     from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
     from safetensors.numpy import load as load_safetensors
 
     folder = Path(path)
+    if folder.is_file():
+        from craft_e.runtime.package import load_packed_bundle
+
+        return load_packed_bundle(
+            folder, trusted_keys, check_encoder=check_encoder, encoder_id=encoder_id
+        )
     manifest = read_manifest(folder)
     data = verify_files(folder, manifest)
     if check_encoder:

@@ -1,7 +1,8 @@
 """Bundle v1: the files of ``artifacts/kb/<name>/`` and the manifest that makes them verifiable.
 
-``content_sha256`` is the sha256 of the canonical JSON of ``{file name: sha256}`` over every file
-listed in ``files`` (all bundle files but ``manifest.json`` and ``build_info.json``). Volatile
+``content_sha256`` is the sha256 of the canonical JSON of the manifest without that field; the
+manifest's ``files`` table holds the sha256 of every bundle file but ``manifest.json`` and
+``build_info.json``. Volatile
 facts (time, host, durations) live in ``build_info.json`` so two builds of the same inputs are
 byte-identical.
 """
@@ -81,10 +82,24 @@ class Manifest(_Frozen):
     properties: list[str] = Field(description="row order of property embeddings")
 
 
-def content_hash(files: dict[str, FileDigest]) -> str:
-    """sha256 over the canonical JSON of ``{name: sha256}``: the bundle's identity."""
-    table = {name: digest.sha256 for name, digest in sorted(files.items())}
-    return hashlib.sha256(canonical_json(table).encode()).hexdigest()
+#: Placeholder for ``content_sha256`` before a manifest is sealed.
+UNSEALED = "0" * 64
+
+
+def content_hash(manifest: Manifest) -> str:
+    """sha256 over the canonical JSON of the whole manifest except ``content_sha256``.
+
+    The manifest's file table pins every file's bytes, and hashing the rest of the manifest too
+    (axis order, encoder, energy form, sources) means no field can be edited unnoticed.
+    """
+    body = manifest.model_dump(mode="json")
+    body.pop("content_sha256")
+    return hashlib.sha256(canonical_json(body).encode()).hexdigest()
+
+
+def sealed(manifest: Manifest) -> Manifest:
+    """The manifest with ``content_sha256`` set to its content hash."""
+    return manifest.model_copy(update={"content_sha256": content_hash(manifest)})
 
 
 class DropRecord(_Frozen):

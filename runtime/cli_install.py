@@ -1,0 +1,126 @@
+"""``craft install`` / ``craft rollback`` / ``craft installed``: thin commands over ``install.py``.
+
+Exit codes: 0 ok; 1 a package or installed version failed verification (untrusted signer,
+tampered, damaged); 2 bad usage (missing file, busy or foreign install folder, nothing to roll
+back to). The runtime CLI never imports the compiler.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, NoReturn
+
+import typer
+from rich.console import Console
+
+_err = Console(stderr=True)
+_out = Console()
+EXIT_CHECK_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+IntoOpt = Annotated[
+    Path, typer.Option("--into", help="Install folder (holds versions/, current, previous).")
+]
+
+
+def _fail(message: str, code: int) -> NoReturn:
+    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def install_cmd(
+    package: Annotated[Path, typer.Argument(help="Signed package (kb.craft).")],
+    into: IntoOpt,
+    trusted_key: Annotated[
+        list[Path],
+        typer.Option(
+            "--trusted-key", help="Signer's public key file (craft-signing.pub); repeatable."
+        ),
+    ],
+    keep_all: Annotated[
+        bool, typer.Option(help="Keep versions other than current and previous.")
+    ] = False,
+) -> None:
+    """Verify a signed package and make it the current KB (the old one becomes previous)."""
+    from craft_e.runtime.install import InstallError, install
+    from craft_e.runtime.package import DestinationError, PackageError
+
+    try:
+        result = install(package, into, [str(p) for p in trusted_key], prune=not keep_all)
+    except (InstallError, DestinationError) as exc:
+        _fail(str(exc), EXIT_BAD_INPUT)
+    except PackageError as exc:
+        missing = not package.is_file()
+        _fail(str(exc), EXIT_BAD_INPUT if missing else EXIT_CHECK_FAILED)
+    except OSError as exc:
+        _fail(f"{into}: cannot write the install folder ({exc})", EXIT_BAD_INPUT)
+    how = "already present, verified" if result.reused else "unpacked and verified"
+    _out.print(
+        f"installed {result.version} ({how}) -> {into / 'current'}\n"
+        f"  previous: {result.previous or '-'}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def rollback_cmd(into: IntoOpt) -> None:
+    """Switch current back to the previous version (run again to undo)."""
+    from craft_e.runtime.install import DamagedVersionError, InstallError, rollback
+
+    try:
+        result = rollback(into)
+    except DamagedVersionError as exc:
+        _fail(str(exc), EXIT_CHECK_FAILED)
+    except InstallError as exc:
+        _fail(str(exc), EXIT_BAD_INPUT)
+    _out.print(
+        f"rolled back: current -> {result.version}; previous -> {result.previous or '-'}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def installed_cmd(
+    into: IntoOpt,
+    verify: Annotated[bool, typer.Option(help="Re-hash every file of every version.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+) -> None:
+    """List installed versions, marking current (*) and previous (-)."""
+    from craft_e.runtime.install import InstallError, installed
+
+    try:
+        versions = installed(into, verify=verify)
+    except InstallError as exc:
+        _fail(str(exc), EXIT_BAD_INPUT)
+    if as_json:
+        rows = [
+            {
+                "version": v.version,
+                "path": str(v.path),
+                "kb_name": v.kb_name,
+                "kb_version": v.kb_version,
+                "content_sha256": v.content_sha256,
+                "current": v.is_current,
+                "previous": v.is_previous,
+                "problem": v.problem,
+            }
+            for v in versions
+        ]
+        sys.stdout.write(json.dumps(rows, indent=1) + "\n")
+    elif not versions:
+        _out.print(f"nothing installed in {into}", highlight=False)
+    for v in [] if as_json else versions:
+        mark = "*" if v.is_current else "-" if v.is_previous else " "
+        state = f"  [red]{v.problem}[/]" if v.problem else ""
+        _out.print(f"{mark} {v.version}{state}", highlight=False, soft_wrap=True)
+    if any(v.problem for v in versions):
+        raise typer.Exit(EXIT_CHECK_FAILED)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``install``, ``rollback`` and ``installed`` to the ``craft`` app."""
+    app.command("install")(install_cmd)
+    app.command("rollback")(rollback_cmd)
+    app.command("installed")(installed_cmd)

@@ -1,0 +1,299 @@
+"""Installing packed bundles on a robot with atomic switch-over and one-step rollback.
+
+Layout under ``into`` (relative symlinks, so the folder can be moved or rsynced whole):
+
+.. code-block:: text
+
+    into/versions/<kb_name>-<kb_version>-<hash12>/   one verified bundle folder per version
+    into/current  -> versions/<id>                   what the robot loads
+    into/previous -> versions/<id>                   what ``rollback`` returns to
+    into/.lock                                       serializes install/rollback (flock)
+
+Why this shape: a robot may lose power at any instant. A version folder appears only by the
+rename of a fully verified staging folder (``unpack_package``), and ``current`` changes only by
+``os.replace`` of a freshly made temporary symlink, which POSIX makes atomic. So at every
+instant ``current`` names a complete, verified version — the old one until the final rename,
+the new one after it. Version folders are never modified once named; a crashed install leaves
+only hidden staging folders, swept by the next install.
+
+Load the installed bundle with ``load_bundle(current(into))``: ``current`` resolves the link
+once, so a concurrent switch cannot make one load read files of two versions.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import re
+import secrets
+import shutil
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from craft_e.runtime.bundle import BundleError, read_manifest, verify_files
+from craft_e.runtime.package import (
+    DEFAULT_LIMITS,
+    Limits,
+    TrustedKey,
+    unpack_package,
+    verify_package,
+)
+from craft_e.schemas.v1.bundle import Manifest
+
+VERSIONS = "versions"
+CURRENT = "current"
+PREVIOUS = "previous"
+LOCK = ".lock"
+_VERSION_NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*-\d+\.\d+\.\d+-[0-9a-f]{12}$")
+
+
+class InstallError(BundleError):
+    """An install folder is busy, damaged or has nothing to roll back to; says the fix."""
+
+
+class DamagedVersionError(InstallError):
+    """An installed version folder no longer matches its manifest (disk damage, edits)."""
+
+
+@dataclass(frozen=True)
+class InstallResult:
+    version: str
+    path: Path
+    previous: str | None  # what ``previous`` points to afterwards
+    reused: bool  # the version folder was already present and verified
+
+
+@dataclass(frozen=True)
+class InstalledVersion:
+    """One folder under ``versions/`` as ``craft installed`` lists it."""
+
+    version: str
+    path: Path
+    kb_name: str | None
+    kb_version: str | None
+    content_sha256: str | None
+    is_current: bool
+    is_previous: bool
+    problem: str | None = None
+
+
+def version_id(manifest: Manifest) -> str:
+    """``<kb_name>-<kb_version>-<first 12 hex of content sha256>``: readable and unique."""
+    return f"{manifest.kb_name}-{manifest.kb_version}-{manifest.content_sha256[:12]}"
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@contextlib.contextmanager
+def _locked(into: Path) -> Iterator[None]:
+    """Hold ``into/.lock`` exclusively; a second installer fails fast instead of interleaving.
+
+    ``flock`` is released by the kernel when a process dies, so a crash never leaves it stuck.
+    """
+    into.mkdir(parents=True, exist_ok=True)
+    fd = os.open(into / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InstallError(
+                f"{into}: another `craft install` or `craft rollback` is running; wait for it "
+                "and retry"
+            ) from None
+        yield
+    finally:
+        os.close(fd)
+
+
+def _link_target(into: Path, name: str) -> str | None:
+    """The version a link names, or None if the link does not exist; refuses foreign links."""
+    link = into / name
+    if not link.is_symlink():
+        if link.exists():
+            raise InstallError(
+                f"{link}: exists but is not a symlink made by `craft install`; move it away"
+            )
+        return None
+    target = os.readlink(link)
+    parts = target.split("/")
+    if len(parts) != 2 or parts[0] != VERSIONS or not _VERSION_NAME.match(parts[1]):
+        raise InstallError(
+            f"{link}: points to {target!r}, not to {VERSIONS}/<version>; it was not made by "
+            "`craft install` — remove it and install again"
+        )
+    if not (into / VERSIONS / parts[1]).is_dir():
+        raise InstallError(f"{link}: points to missing version {parts[1]}; install a package again")
+    return parts[1]
+
+
+def _point(into: Path, name: str, version: str) -> None:
+    """Make ``into/name`` point at ``versions/<version>`` atomically (temp symlink + replace)."""
+    tmp = into / f".{name}.{secrets.token_hex(6)}.tmp"
+    os.symlink(f"{VERSIONS}/{version}", tmp)
+    try:
+        os.replace(tmp, into / name)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(into)
+
+
+def _verified_folder(folder: Path) -> Manifest | None:
+    try:
+        manifest = read_manifest(folder)
+        verify_files(folder, manifest)
+    except BundleError:
+        return None
+    return manifest
+
+
+def _sweep(into: Path) -> None:
+    """Remove leftovers of crashed runs: hidden staging folders and temp links."""
+    versions = into / VERSIONS
+    if versions.is_dir():
+        for entry in versions.iterdir():
+            if entry.name.startswith("."):
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
+    for entry in into.iterdir():
+        if entry.name.startswith(".") and entry.name.endswith(".tmp") and entry.is_symlink():
+            entry.unlink(missing_ok=True)
+
+
+def _prune(into: Path, keep: set[str]) -> list[str]:
+    removed: list[str] = []
+    for entry in sorted((into / VERSIONS).iterdir()):
+        if entry.name.startswith(".") or entry.name in keep:
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(entry.name)
+    return removed
+
+
+def install(
+    package: Path | str,
+    into: Path | str,
+    trusted_keys: Sequence[TrustedKey] | None,
+    *,
+    prune: bool = True,
+    limits: Limits = DEFAULT_LIMITS,
+) -> InstallResult:
+    """Verify ``package``, unpack it as a new version, then switch ``current`` to it.
+
+    The old ``current`` becomes ``previous``. With ``prune``, versions that are neither current
+    nor previous are removed afterwards (a robot's disk is small). Installing the version that is
+    already current changes nothing; re-installing a damaged version folder replaces it.
+    """
+    package, into = Path(package), Path(into)
+    with _locked(into):
+        versions = into / VERSIONS
+        versions.mkdir(exist_ok=True)
+        _sweep(into)
+        verified = verify_package(package, trusted_keys, limits=limits)  # before touching anything
+        vid = version_id(verified.manifest)
+        target = versions / vid
+        old = _link_target(into, CURRENT)
+        reused = False
+        if target.is_dir() and _verified_folder(target) == verified.manifest:
+            reused = True
+        else:
+            if target.exists() or target.is_symlink():
+                # a damaged copy (never the verified current: that would have matched above)
+                aside = versions / f".{vid}.{secrets.token_hex(4)}.broken"
+                os.replace(target, aside)
+                shutil.rmtree(aside, ignore_errors=True)
+            unpack_package(package, trusted_keys, target, limits=limits)
+        if old != vid:
+            if old is not None:
+                _point(into, PREVIOUS, old)
+            _point(into, CURRENT, vid)
+        if prune:
+            keep = {vid} | {v for v in (_link_target(into, PREVIOUS),) if v is not None}
+            _prune(into, keep)
+        return InstallResult(vid, target, _link_target(into, PREVIOUS), reused)
+
+
+def rollback(into: Path | str) -> InstallResult:
+    """Switch ``current`` back to ``previous`` (and ``previous`` to the old current).
+
+    Rolling back twice returns to where you started. The previous version is re-verified
+    first, so a rollback never switches to a damaged folder.
+    """
+    into = Path(into)
+    if not into.is_dir():
+        raise InstallError(f"{into}: no such install folder; run `craft install` first")
+    with _locked(into):
+        cur, prev = _link_target(into, CURRENT), _link_target(into, PREVIOUS)
+        if prev is None:
+            raise InstallError(
+                f"{into}: nothing to roll back to (no previous version); install an older "
+                "package instead"
+            )
+        folder = into / VERSIONS / prev
+        if _verified_folder(folder) is None:
+            raise DamagedVersionError(
+                f"{folder}: the previous version no longer verifies; re-install its package "
+                "instead of rolling back"
+            )
+        _point(into, CURRENT, prev)  # the step that matters comes first
+        if cur is not None:
+            _point(into, PREVIOUS, cur)
+        return InstallResult(prev, folder, cur, True)
+
+
+def current(into: Path | str) -> Path | None:
+    """The resolved folder of the current version (pass it to ``load_bundle``), or None."""
+    into = Path(into)
+    if not into.is_dir():
+        return None
+    vid = _link_target(into, CURRENT)
+    return None if vid is None else (into / VERSIONS / vid).resolve()
+
+
+def installed(into: Path | str, *, verify: bool = False) -> list[InstalledVersion]:
+    """Every version folder, newest name last, with its manifest facts and current/previous marks.
+
+    With ``verify`` every file is re-hashed (slower), so ``problem`` reports silent disk damage.
+    """
+    into = Path(into)
+    versions = into / VERSIONS
+    if not versions.is_dir():
+        return []
+    cur, prev = _link_target(into, CURRENT), _link_target(into, PREVIOUS)
+    out: list[InstalledVersion] = []
+    for entry in sorted(versions.iterdir()):
+        if entry.name.startswith(".") or not entry.is_dir():
+            continue
+        problem: str | None = None
+        manifest: Manifest | None = None
+        try:
+            manifest = read_manifest(entry)
+            if verify:
+                verify_files(entry, manifest)
+        except BundleError as exc:
+            problem = str(exc)
+        out.append(
+            InstalledVersion(
+                version=entry.name,
+                path=entry,
+                kb_name=manifest.kb_name if manifest else None,
+                kb_version=manifest.kb_version if manifest else None,
+                content_sha256=manifest.content_sha256 if manifest else None,
+                is_current=entry.name == cur,
+                is_previous=entry.name == prev,
+                problem=problem,
+            )
+        )
+    return out
