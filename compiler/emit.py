@@ -49,7 +49,12 @@ def write_bundle(
             retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
             retired.rmdir()
             os.replace(out, retired)
-            os.replace(staging, out)
+            try:
+                os.replace(staging, out)
+            except BaseException:
+                # Put the previous bundle back: --out must never be left empty or half-swapped.
+                os.replace(retired, out)
+                raise
             shutil.rmtree(retired, ignore_errors=True)
         else:
             os.replace(staging, out)

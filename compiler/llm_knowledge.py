@@ -139,7 +139,9 @@ def llm_property_draft(
                 links[obj] = Link(score.weight, (record.key,), "llm")
                 draft.count(stage2, "edges kept")
     draft.count(stage2, "records read", used_records)
-    draft.count(stage2, "records newly requested", len(new_calls))
+    # How many of these records were fetched live *now* is a fact about the cache's history, not
+    # about the knowledge: counting it in report.json (inside the content hash) made a cold and a
+    # warm build of the same records differ, and two concurrent builds on one cache disagree.
     draft.sources.append(
         SourceInfo(
             kind="llm",

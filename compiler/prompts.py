@@ -68,10 +68,10 @@ def load_prompt(
     prompt_id: str, version: str | None = None, prompts_dir: Path = PROMPTS_DIR
 ) -> PromptTemplate:
     """Read ``<prompts_dir>/<prompt_id>.<version>.md``."""
+    if prompt_id not in PAYLOADS:  # before the default-version lookup, which would KeyError
+        raise PromptError(f"unknown prompt id {prompt_id!r}; known: {sorted(PAYLOADS)}")
     version = version or DEFAULT_VERSIONS[prompt_id]
     path = prompts_dir / f"{prompt_id}.{version}.md"
-    if prompt_id not in PAYLOADS:
-        raise PromptError(f"unknown prompt id {prompt_id!r}; known: {sorted(PAYLOADS)}")
     if not path.is_file():
         raise PromptError(f"prompt template {path} not found")
     text = path.read_text(encoding="utf-8")

@@ -1,0 +1,151 @@
+"""Shared fixtures for the compiler tests.
+
+The knowledge used here is a *test fixture*: tiny answer files in ``tests/fixtures/kb_small``,
+written for the project's own prompts and stored as records in a temporary cache under provider
+``test-fixture`` (never ``curated``, never in ``artifacts/``). Loading the text encoder costs a
+few seconds, so the base bundle is built once per session and every later build starts from a
+copy of its cache, whose embeddings are already computed.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pytest
+
+if TYPE_CHECKING:
+    from craft_e.compiler.build import BuildConfig
+    from craft_e.compiler.sources.llm import LLMSource
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+KB_SMALL = FIXTURES / "kb_small"
+PROVIDER = "test-fixture"
+MODEL = "fixture-v1"
+KB_NAME = "fixture-kb"
+NOTE = "test fixture from tests/fixtures/kb_small (not knowledge to ship)"
+
+
+def fixture_source(cache_root: Path) -> LLMSource:
+    """An ``LLMSource`` over ``cache_root`` that reads and writes fixture records."""
+    from craft_e.compiler.cache import RecordCache
+    from craft_e.compiler.sources.llm import LLMSource
+
+    return LLMSource(RecordCache(cache_root), provider=PROVIDER, model=MODEL)
+
+
+def record_fixture(
+    cache_root: Path,
+    prompt: str,
+    answers: str,
+    verbs: str = "verbs.txt",
+    objects: str = "objects.txt",
+) -> None:
+    """Store the answers of ``tests/fixtures/kb_small/<answers>`` as records of their prompts."""
+    from craft_e.compiler.curate import record_answers
+    from craft_e.compiler.vocab import read_vocabulary
+
+    result = record_answers(
+        fixture_source(cache_root),
+        prompt,
+        KB_SMALL / answers,
+        read_vocabulary(KB_SMALL / verbs, kind="verbs").names,
+        read_vocabulary(KB_SMALL / objects, kind="objects").names,
+        note=NOTE,
+    )
+    assert not result.skipped, result.skipped
+
+
+def build_config(
+    cache_root: Path,
+    out: Path,
+    verbs: str = "verbs.txt",
+    objects: str = "objects.txt",
+) -> BuildConfig:
+    """The ``BuildConfig`` of a fixture build (replaying ``test-fixture`` records)."""
+    from craft_e.compiler.build import BuildConfig
+
+    return BuildConfig(
+        verbs_file=KB_SMALL / verbs,
+        objects_file=KB_SMALL / objects,
+        out=out,
+        name=KB_NAME,
+        provider=PROVIDER,
+        model=MODEL,
+        cache_root=cache_root,
+    )
+
+
+@dataclass(frozen=True)
+class FixtureKB:
+    """A built fixture bundle and the cache it was built from (treat both as read-only)."""
+
+    cache: Path
+    bundle: Path
+    embedding_misses: int
+    embedding_hits: int
+
+
+def _build(
+    cache: Path, out: Path, verbs: str = "verbs.txt", objects: str = "objects.txt"
+) -> FixtureKB:
+    from craft_e.compiler.build import build
+
+    result = build(build_config(cache, out, verbs, objects))
+    return FixtureKB(cache, out, result.embedding_misses, result.embedding_hits)
+
+
+@pytest.fixture(scope="session")
+def kb_a(tmp_path_factory: pytest.TempPathFactory) -> FixtureKB:
+    """The base fixture bundle: verbs cut/scoop/pour, objects knife/spoon/bowl/cup (cold build)."""
+    root = tmp_path_factory.mktemp("kb_a")
+    record_fixture(root / "cache", "verb_properties", "verb_properties.jsonl")
+    record_fixture(root / "cache", "object_properties", "object_properties.jsonl")
+    return _build(root / "cache", root / "bundle")
+
+
+@pytest.fixture(scope="session")
+def clone_cache(kb_a: FixtureKB) -> Callable[[Path], Path]:
+    """Copy the base cache (records + warm embeddings) to a new folder and return it."""
+
+    def clone(dest: Path) -> Path:
+        shutil.copytree(kb_a.cache, dest)
+        return dest
+
+    return clone
+
+
+@pytest.fixture(scope="session")
+def kb_scoop_v2(
+    tmp_path_factory: pytest.TempPathFactory, clone_cache: Callable[[Path], Path]
+) -> FixtureKB:
+    """The base bundle after a revised answer for "scoop": its top-1 flips spoon -> cup."""
+    root = tmp_path_factory.mktemp("kb_scoop_v2")
+    cache = clone_cache(root / "cache")
+    record_fixture(cache, "verb_properties", "scoop_v2.verb_properties.jsonl")
+    return _build(cache, root / "bundle")
+
+
+@pytest.fixture(scope="session")
+def kb_b2(
+    tmp_path_factory: pytest.TempPathFactory, clone_cache: Callable[[Path], Path]
+) -> FixtureKB:
+    """Structural change: verb "pour" removed, object "cup" replaced by "ladle"."""
+    root = tmp_path_factory.mktemp("kb_b2")
+    cache = clone_cache(root / "cache")
+    record_fixture(
+        cache,
+        "object_properties",
+        "ladle.object_properties.jsonl",
+        "verbs_b2.txt",
+        "objects_b2.txt",
+    )
+    return _build(cache, root / "bundle", "verbs_b2.txt", "objects_b2.txt")
+
+
+def bundle_bytes(folder: Path) -> dict[str, bytes]:
+    """Every file of a bundle folder by name."""
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
