@@ -1,0 +1,166 @@
+"""Shared pieces of the evaluation harnesses: ranking metrics, image-embedding cache, result tables.
+
+Every harness reports methods side by side in one table. A method that cannot run (its bundle
+is missing, say) is reported as *skipped with the reason*, never silently left out, so a table
+with a missing row cannot be mistaken for a complete one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float32]
+BoolArray = npt.NDArray[np.bool_]
+
+
+# ---------------------------------------------------------------------------------------------
+# metrics over episodes: ``energy`` [E, K] (lower = better), ``relevant`` [E, K] bool
+
+
+def rank_order(energy: npt.NDArray[Any]) -> npt.NDArray[np.intp]:
+    """Candidate indices best first, ``[E, K]``; ties keep candidate order (stable)."""
+    return np.argsort(energy, axis=1, kind="stable")
+
+
+def topk_accuracy(energy: npt.NDArray[Any], relevant: BoolArray, k: int) -> FloatArray:
+    """``[E]`` 1.0 where a relevant candidate is among the ``k`` lowest energies."""
+    order = rank_order(energy)[:, :k]  # [E, k]
+    hit: FloatArray = np.asarray(np.take_along_axis(relevant, order, axis=1).any(axis=1), dtype=np.float32)
+    return hit
+
+
+def reciprocal_rank(energy: npt.NDArray[Any], relevant: BoolArray) -> FloatArray:
+    """``[E]`` 1 / rank of the first relevant candidate (0 if none)."""
+    rel_sorted = np.take_along_axis(relevant, rank_order(energy), axis=1)  # [E, K]
+    first = np.argmax(rel_sorted, axis=1)  # [E]
+    has = rel_sorted.any(axis=1)
+    return np.where(has, 1.0 / (first + 1.0), 0.0).astype(np.float32)
+
+
+def ndcg(energy: npt.NDArray[Any], relevant: BoolArray) -> FloatArray:
+    """``[E]`` nDCG with binary relevance over the full ranking of the K candidates."""
+    k = relevant.shape[1]
+    discount = 1.0 / np.log2(np.arange(2, k + 2))  # [K]
+    rel_sorted = np.take_along_axis(relevant, rank_order(energy), axis=1).astype(np.float64)
+    dcg = rel_sorted @ discount  # [E]
+    n_rel = relevant.sum(axis=1)  # [E]
+    ideal = np.cumsum(discount)[np.maximum(n_rel - 1, 0)]  # [E]
+    return np.where(n_rel > 0, dcg / ideal, 0.0).astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# image embeddings, computed once per image and encoder
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+class ImageEmbeddingCache:
+    """Embeddings per (encoder id, image file sha256): in memory, optionally on disk.
+
+    On disk it is one safetensors file per encoder under ``folder`` (tensor name = image sha256),
+    so re-running an evaluation costs no forward pass and nothing is unpickled.
+    """
+
+    def __init__(self, encoder_id: str, folder: Path | None) -> None:
+        self.encoder_id = encoder_id
+        self.path = None if folder is None else folder / f"images.{_safe(encoder_id)}.safetensors"
+        self._mem: dict[str, FloatArray] = {}
+        self.hits = 0
+        self.computed = 0
+        if self.path is not None and self.path.is_file():
+            from safetensors import safe_open
+            from safetensors.numpy import load_file
+
+            with safe_open(str(self.path), framework="numpy") as handle:
+                meta = handle.metadata() or {}
+            if meta.get("encoder") == encoder_id:
+                self._mem.update({k: np.asarray(v, np.float32) for k, v in load_file(str(self.path)).items()})
+
+    def embed_files(
+        self, paths: Sequence[Path], embed: Callable[[list[Path]], FloatArray]
+    ) -> FloatArray:
+        """``[N, d]`` embeddings of ``paths``; ``embed`` is called once for the missing ones."""
+        keys = [file_sha256(p) for p in paths]
+        unique = list(dict.fromkeys(keys))
+        todo = [k for k in unique if k not in self._mem]
+        if todo:
+            first_path = {k: p for k, p in zip(keys, paths, strict=True)}
+            vectors = embed([first_path[k] for k in todo])  # [M, d]
+            for k, vec in zip(todo, vectors, strict=True):
+                self._mem[k] = np.asarray(vec, dtype=np.float32)
+            self.computed += len(todo)
+            self._save()
+        self.hits += len(unique) - len(todo)
+        return np.stack([self._mem[k] for k in keys]).astype(np.float32)
+
+    def _save(self) -> None:
+        if self.path is None:
+            return
+        from safetensors.numpy import save_file
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        save_file(dict(sorted(self._mem.items())), str(tmp), metadata={"encoder": self.encoder_id})
+        tmp.replace(self.path)
+
+
+def _safe(text: str) -> str:
+    keep = "".join(c if c.isalnum() or c in "-." else "_" for c in text)
+    return f"{keep[:80]}-{hashlib.sha256(text.encode()).hexdigest()[:10]}"
+
+
+# ---------------------------------------------------------------------------------------------
+# results
+
+
+@dataclass
+class MethodResult:
+    """One row of a results table: metric name -> value in [0, 1], plus per-verb details."""
+
+    name: str
+    description: str
+    metrics: dict[str, float]
+    per_verb: dict[str, dict[str, float]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SkippedMethod:
+    name: str
+    reason: str
+
+
+def markdown_table(results: Sequence[MethodResult], skipped: Sequence[SkippedMethod],
+                   columns: Sequence[tuple[str, str]]) -> str:
+    """Methods x metrics in percent (as the paper reports them), then the skipped methods."""
+    head = "| Method | " + " | ".join(label for _, label in columns) + " |"
+    rule = "|---|" + "---:|" * len(columns)
+    rows = [head, rule]
+    for r in results:
+        cells = [f"{100 * r.metrics[key]:.2f}" if key in r.metrics else "–" for key, _ in columns]
+        rows.append(f"| {r.name} | " + " | ".join(cells) + " |")
+    for s in skipped:
+        rows.append(f"| {s.name} | " + " | ".join("skipped" for _ in columns) + " |")
+    out = "\n".join(rows) + "\n"
+    if skipped:
+        out += "\n" + "\n".join(f"- **{s.name}** skipped: {s.reason}" for s in skipped) + "\n"
+    notes = [(r.name, n) for r in results for n in r.notes]
+    if notes:
+        out += "\n" + "\n".join(f"- {name}: {n}" for name, n in notes) + "\n"
+    return out
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")

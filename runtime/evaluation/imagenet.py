@@ -1,0 +1,429 @@
+"""``craft eval imagenet``: functional grounding on ImageNet (Nguyen et al., RSS 2020 protocol).
+
+Data: ``<shared>/data/imagenet_affordance`` (``objects.tsv``: object, wnid, image — one photo per
+class; ``crane`` and ``cardigan`` have two wnids, and both photos belong to the class: an episode
+shows one of them, drawn at random). Labels come from a JSON file ``{"verb": ["object", ...]}``
+(keys starting with ``_`` are comments); the benchmark's real labels are withheld and are never
+reconstructed here.
+
+* **single-affordance**: per verb, ``episodes`` episodes of 1 affording class + 4 distinct
+  non-affording classes; top-1 and top-2 accuracy of the lowest-energy image.
+* **multi-affordance**: per verb, ``episodes`` episodes of 5 distinct classes drawn uniformly
+  among the sets with at least one affording class (rejection sampling); MRR and nDCG.
+
+Episodes come from a numpy ``Generator`` seeded by ``(seed, crc32(verb), setting)``, so they are
+identical for every method and do not change when verbs are added or removed. Whole images are
+the ROIs: there is no grasp term (``alpha = 0``). Each image is embedded once per encoder (in
+memory and on disk under ``artifacts/cache/encoders``); a method then scores every image for a
+verb in one vectorized call, and its episodes index into those energies.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import json
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from craft_e.paths import KB_DIR, VOCAB_DIR, shared_dir
+from craft_e.runtime.energies import EnergyForm, object_hypotheses
+from craft_e.runtime.evaluation.common import (
+    ImageEmbeddingCache,
+    MethodResult,
+    SkippedMethod,
+    file_sha256,
+    markdown_table,
+    ndcg,
+    reciprocal_rank,
+    topk_accuracy,
+)
+from craft_e.runtime.grounding import DEFAULT_TEMPERATURE, AffMode, normalize_verb_name
+
+IntArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
+FloatArray = npt.NDArray[np.float32]
+
+CANDIDATES = 5
+SETTINGS = ("single", "multi")
+_SETTING_IDS = {"single": 1, "multi": 2}
+MAX_REJECTIONS = 100_000
+COLUMNS = (("top1", "Top-1"), ("top2", "Top-2"), ("mrr", "MRR"), ("ndcg", "nDCG"))
+
+
+class LabelsError(ValueError):
+    """The labels file is malformed or names objects outside the benchmark."""
+
+
+def dataset_dir() -> Path:
+    return shared_dir() / "data" / "imagenet_affordance"
+
+
+def _norm(name: str) -> str:
+    from craft_e.schemas.names import normalize_name
+
+    try:
+        return normalize_name(name)
+    except ValueError:
+        return name.strip().lower()
+
+
+@dataclass(frozen=True)
+class ImageNetData:
+    """The benchmark's classes and photos: ``class_images[c]`` are indices into ``images``."""
+
+    root: Path
+    classes: list[str]
+    images: list[Path]
+    class_images: list[list[int]]
+
+    @property
+    def class_index(self) -> dict[str, int]:
+        return {c: i for i, c in enumerate(self.classes)}
+
+
+def load_dataset(root: Path | None = None) -> ImageNetData:
+    """Read ``objects.tsv``; a class listed with several wnids owns all of their images."""
+    folder = root or dataset_dir()
+    table = folder / "objects.tsv"
+    if not table.is_file():
+        raise FileNotFoundError(f"{table}: ImageNet affordance data not found; set CRAFT_SHARED to the shared folder")
+    classes: list[str] = []
+    class_images: list[list[int]] = []
+    images: list[Path] = []
+    index: dict[str, int] = {}
+    with table.open(encoding="utf-8", newline="") as handle:
+        for row in csv.DictReader(handle, delimiter="\t"):
+            name = _norm(row["object"])
+            if name not in index:
+                index[name] = len(classes)
+                classes.append(name)
+                class_images.append([])
+            path = folder / "images" / row["image"]
+            if not path.is_file():
+                raise FileNotFoundError(f"{path}: listed in {table} but missing")
+            class_images[index[name]].append(len(images))
+            images.append(path)
+    return ImageNetData(folder, classes, images, class_images)
+
+
+def load_labels(path: Path, classes: Sequence[str]) -> dict[str, list[str]]:
+    """``{"verb": ["object", ...]}`` with names normalized; unknown objects are an error that
+    lists close matches (a typo would silently turn a positive into a negative)."""
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise LabelsError(f"{path}: labels file not found") from None
+    except json.JSONDecodeError as exc:
+        raise LabelsError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(raw, dict):
+        raise LabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
+    known = set(classes)
+    labels: dict[str, list[str]] = {}
+    for verb, objects in raw.items():
+        if str(verb).startswith("_"):
+            continue
+        if not isinstance(objects, list) or not all(isinstance(o, str) for o in objects):
+            raise LabelsError(f"{path}: {verb!r}: expected a list of object names")
+        names = list(dict.fromkeys(_norm(o) for o in objects))
+        unknown = [o for o in names if o not in known]
+        if unknown:
+            close = {o: difflib.get_close_matches(o, list(known), n=3) for o in unknown}
+            raise LabelsError(f"{path}: {verb!r} names objects outside the benchmark: "
+                              + "; ".join(f"{o!r} (close: {', '.join(c) or 'none'})" for o, c in close.items()))
+        labels[normalize_verb_name(verb)] = names
+    if not labels:
+        raise LabelsError(f"{path}: no verbs")
+    return labels
+
+
+@dataclass(frozen=True)
+class EpisodeSet:
+    """``episodes`` x 5 candidate images of one verb and setting, and which ones afford it."""
+
+    verb: str
+    setting: str
+    images: IntArray  # [E, 5] indices into ImageNetData.images
+    relevant: BoolArray  # [E, 5]
+
+
+@dataclass(frozen=True)
+class SkippedVerb:
+    verb: str
+    setting: str
+    reason: str
+
+
+def _rng(seed: int, verb: str, setting: str) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(verb.encode()), _SETTING_IDS[setting]]))
+
+
+def make_episodes(
+    labels: dict[str, list[str]], data: ImageNetData, *, episodes: int = 100, seed: int = 0,
+    pool: Sequence[str] | None = None,
+) -> tuple[list[EpisodeSet], list[SkippedVerb]]:
+    """Both settings' episodes for every verb, and the verbs that cannot form episodes (why)."""
+    cidx = data.class_index
+    pool_ids = np.array(sorted(cidx[c] for c in (pool or data.classes)), dtype=np.intp)
+    in_pool = set(pool_ids.tolist())
+    sets: list[EpisodeSet] = []
+    skipped: list[SkippedVerb] = []
+    for verb in labels:
+        pos = {cidx[o] for o in labels[verb] if cidx[o] in in_pool}
+        neg = np.array([c for c in pool_ids if c not in pos], dtype=np.intp)
+        pos_arr = np.array(sorted(pos), dtype=np.intp)
+        for setting in SETTINGS:
+            if not pos:
+                skipped.append(SkippedVerb(verb, setting, "no affording class in the pool"))
+                continue
+            if setting == "single" and len(neg) < CANDIDATES - 1:
+                skipped.append(SkippedVerb(verb, setting, f"only {len(neg)} non-affording classes (need 4)"))
+                continue
+            if setting == "multi" and len(pool_ids) < CANDIDATES:
+                skipped.append(SkippedVerb(verb, setting, f"only {len(pool_ids)} classes (need 5)"))
+                continue
+            rng = _rng(seed, verb, setting)
+            classes = np.zeros((episodes, CANDIDATES), dtype=np.intp)
+            for e in range(episodes):
+                if setting == "single":
+                    row = np.concatenate([[rng.choice(pos_arr)], rng.choice(neg, CANDIDATES - 1, replace=False)])
+                    classes[e] = row[rng.permutation(CANDIDATES)]
+                else:
+                    for _ in range(MAX_REJECTIONS):
+                        row = rng.choice(pool_ids, CANDIDATES, replace=False)
+                        if any(int(c) in pos for c in row):
+                            break
+                    classes[e] = row
+            images = np.array([[data.class_images[c][rng.integers(len(data.class_images[c]))] for c in row]
+                               for row in classes], dtype=np.intp)  # [E, 5]
+            relevant = np.isin(classes, pos_arr)  # [E, 5]
+            sets.append(EpisodeSet(verb, setting, images, relevant))
+    return sets, skipped
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A row of the table: a bundle and the energy weights it is scored with."""
+
+    name: str
+    description: str
+    bundle: Path
+    beta: float = 1.0
+    gamma: float = 1.0
+
+
+def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR) -> list[MethodSpec]:
+    """CRAFT-E, CRAFT (ConceptNet KB), direct-LLM, and the two single-term ablations."""
+    craft_e = kb or kb_dir / "craft-e-default"
+    return [
+        MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e),
+        MethodSpec("CRAFT", "ConceptNet-derived KB + visual alignment", kb_dir / "conceptnet"),
+        MethodSpec("direct-LLM", "verb -> objects ranked directly by the LLM (+ alignment)", kb_dir / "direct-llm"),
+        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0, gamma=1.0),
+        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, beta=1.0, gamma=0.0),
+    ]
+
+
+@dataclass
+class ImageNetReport:
+    results: list[MethodResult]
+    skipped: list[SkippedMethod]
+    skipped_verbs: list[SkippedVerb]
+    config: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "benchmark": "imagenet-affordance (Nguyen et al. protocol)",
+            "config": self.config,
+            "methods": {r.name: {**r.metrics, "description": r.description, "per_verb": r.per_verb,
+                                 "notes": r.notes, "settings": r.settings} for r in self.results},
+            "skipped_methods": [{"method": s.name, "reason": s.reason} for s in self.skipped],
+            "skipped_verbs": [{"verb": s.verb, "setting": s.setting, "reason": s.reason} for s in self.skipped_verbs],
+        }
+
+    def to_markdown(self) -> str:
+        c = self.config
+        head = (f"### ImageNet functional grounding ({c['episodes']} episodes/verb, seed {c['seed']}, "
+                f"{c['verbs']} verbs, labels `{Path(c['labels']).name}`)\n\n"
+                "Single-affordance: Top-1/Top-2; multi-affordance: MRR/nDCG (percent).\n\n")
+        return head + markdown_table(self.results, self.skipped, COLUMNS)
+
+
+def _default_encoder(threads: int | None = None) -> Any:
+    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+
+    return ConSEImageEncoder(threads=threads)
+
+
+def embed_dataset_images(
+    data: ImageNetData, indices: Sequence[int], encoder: Any, cache_dir: Path | None, batch_size: int = 16
+) -> FloatArray:
+    """``[len(indices), d]`` embeddings of whole images, each computed once per encoder."""
+    from craft_e.runtime.encoders.image import load_image
+
+    cache = ImageEmbeddingCache(encoder.id, cache_dir)
+    paths = [data.images[i] for i in indices]
+    out: FloatArray = cache.embed_files(
+        paths, lambda todo: encoder.embed_images([load_image(str(p)) for p in todo], batch_size)
+    )
+    return out
+
+
+def evaluate_imagenet(
+    labels_path: Path,
+    *,
+    methods: Sequence[MethodSpec] | None = None,
+    kb: Path | None = None,
+    episodes: int = 100,
+    seed: int = 0,
+    data_root: Path | None = None,
+    pool: Sequence[str] | None = None,
+    vocabulary: Sequence[str] | None = None,
+    encoder: Any | None = None,
+    cache_dir: Path | None = None,
+    temperature: float = DEFAULT_TEMPERATURE,
+    aff_mode: AffMode = "expected",
+    energy_form: EnergyForm | None = None,
+    threads: int | None = None,
+) -> ImageNetReport:
+    """Run every method on the same episodes; see the module docstring.
+
+    ``pool`` restricts the classes episodes are drawn from (tests use a few); ``vocabulary`` is
+    the object vocabulary of ``p(o | r)`` (default: the 216 ImageNet objects, or ``pool``).
+    ``cache_dir`` ``None`` keeps image embeddings in memory only; ``threads`` caps torch threads
+    of the default (ConSE) encoder.
+    """
+    from craft_e.runtime.bundle import Bundle, BundleError, load_bundle
+    from craft_e.runtime.grounding import Grounder
+
+    data = load_dataset(data_root)
+    labels = load_labels(labels_path, data.classes)
+    if pool is not None:
+        pool = [_norm(c) for c in pool]
+        bad = [c for c in pool if c not in data.class_index]
+        if bad:
+            raise LabelsError(f"pool names classes outside the benchmark: {bad}")
+    if vocabulary is None:
+        vocabulary = list(pool) if pool is not None else [
+            _norm(line) for line in (VOCAB_DIR / "imagenet_objects.txt").read_text(encoding="utf-8").splitlines()
+            if line.strip() and not line.startswith("#")]
+    sets, skipped_verbs = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
+
+    specs = list(methods) if methods is not None else default_methods(kb)
+    bundles: dict[Path, Bundle | str] = {}
+    runnable: list[tuple[MethodSpec, Bundle]] = []
+    skipped: list[SkippedMethod] = []
+    for spec in specs:
+        if spec.bundle not in bundles:
+            try:
+                bundles[spec.bundle] = load_bundle(spec.bundle, check_encoder=False)
+            except BundleError as exc:
+                bundles[spec.bundle] = f"bundle unavailable: {exc}"
+        loaded = bundles[spec.bundle]
+        if isinstance(loaded, str):
+            skipped.append(SkippedMethod(spec.name, loaded))
+        else:
+            runnable.append((spec, loaded))
+
+    class_ids = sorted({data.class_index[c] for c in (pool or data.classes)})
+    image_ids = sorted(i for c in class_ids for i in data.class_images[c])
+    encoder_id = None
+    results: list[MethodResult] = []
+    if runnable and sets:
+        enc = encoder if encoder is not None else _default_encoder(threads)
+        encoder_id = enc.id
+        emb_rows = embed_dataset_images(data, image_ids, enc, cache_dir)  # [n, d]
+        emb = np.zeros((len(data.images), emb_rows.shape[1]), dtype=np.float32)  # [all images, d]
+        emb[image_ids] = emb_rows
+        for spec, bundle in runnable:
+            space = bundle.manifest.text_encoder.id
+            if space != enc.text_encoder_id:
+                skipped.append(SkippedMethod(spec.name, f"{spec.bundle}/manifest.json: text encoder {space}, "
+                                             f"image encoder {enc.id} embeds into {enc.text_encoder_id}"))
+                continue
+            grounder = Grounder(bundle, alpha=0.0, beta=spec.beta, gamma=spec.gamma, temperature=temperature,
+                                aff_mode=aff_mode, energy_form=energy_form, vocabulary=vocabulary, open_vocab=True)
+            results.append(_score_method(spec, grounder, sets, emb, image_ids))
+    config = {
+        "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "episodes": episodes,
+        "seed": seed, "verbs": len(labels), "candidates": CANDIDATES, "classes": len(class_ids),
+        "images": len(image_ids), "vocabulary_size": len(vocabulary), "image_encoder": encoder_id,
+        "temperature": temperature, "aff_mode": aff_mode, "energy_form": energy_form or "bundle",
+        "alpha": 0.0, "data": str(data.root),
+    }
+    return ImageNetReport(results, skipped, skipped_verbs, config)
+
+
+def _score_method(spec: MethodSpec, grounder: Any, sets: list[EpisodeSet], emb: FloatArray,
+                  image_ids: list[int]) -> MethodResult:
+    """Score every image once per verb, then every episode by indexing (fully vectorized)."""
+    energy_by_verb: dict[str, FloatArray] = {}
+    open_vocab: list[str] = []
+    per_verb: dict[str, dict[str, float]] = {}
+    sums: dict[str, list[float]] = {k: [] for k, _ in COLUMNS}
+    for s in sets:
+        if s.verb not in energy_by_verb:
+            if not grounder.knows_verb(s.verb):
+                open_vocab.append(s.verb)
+            energy = np.full(len(emb), np.inf, dtype=np.float32)  # [all images]
+            energy[image_ids] = grounder.energies(s.verb, emb[image_ids]).total
+            energy_by_verb[s.verb] = energy
+        e = energy_by_verb[s.verb][s.images]  # [E, 5]
+        row = per_verb.setdefault(s.verb, {})
+        if s.setting == "single":
+            row["top1"] = float(topk_accuracy(e, s.relevant, 1).mean())
+            row["top2"] = float(topk_accuracy(e, s.relevant, 2).mean())
+        else:
+            row["mrr"] = float(reciprocal_rank(e, s.relevant).mean())
+            row["ndcg"] = float(ndcg(e, s.relevant).mean())
+        for key in row:
+            if key in (("top1", "top2") if s.setting == "single" else ("mrr", "ndcg")):
+                sums[key].append(row[key])
+    notes = []
+    if open_vocab:
+        notes.append(f"{len(open_vocab)} verb(s) not in the KB, scored with the open-vocabulary fallback: "
+                     + ", ".join(sorted(open_vocab)))
+    if grounder.objects_without_knowledge:
+        notes.append(f"{len(grounder.objects_without_knowledge)} vocabulary object(s) not in the KB (E_aff = 0)")
+    return MethodResult(
+        name=spec.name, description=spec.description,
+        metrics={k: float(np.mean(v)) for k, v in sums.items() if v},
+        per_verb=per_verb, notes=notes,
+        settings={"bundle": str(spec.bundle), "kb": grounder.kb, "beta": spec.beta, "gamma": spec.gamma,
+                  "open_vocab_verbs": sorted(open_vocab),
+                  "objects_without_knowledge": list(grounder.objects_without_knowledge)},
+    )
+
+
+@dataclass
+class Calibration:
+    best: float
+    nll: dict[float, float] = field(default_factory=dict)
+    top1: float = 0.0
+
+
+def calibrate_temperature(
+    image_emb: npt.NDArray[Any], object_emb: npt.NDArray[Any], true_index: Sequence[int],
+    grid: Sequence[float] = (0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2),
+) -> Calibration:
+    """Pick T for ``p(o | r)`` by the mean negative log-likelihood of each image's true object.
+
+    Uses only object identities (ImageNet class of each photo), never affordance labels.
+    """
+    img = np.asarray(image_emb, np.float32)
+    img = img / np.linalg.norm(img, axis=1, keepdims=True)
+    obj = np.asarray(object_emb, np.float32)
+    obj = obj / np.linalg.norm(obj, axis=1, keepdims=True)
+    cos = img @ obj.T  # [N, O]
+    idx = np.asarray(true_index)
+    nll = {}
+    for t in grid:
+        p = object_hypotheses(cos, t)  # [N, O]
+        nll[float(t)] = float(-np.log(np.maximum(p[np.arange(len(idx)), idx], 1e-12)).mean())
+    best = min(nll, key=lambda t: nll[t])
+    return Calibration(best, nll, float((cos.argmax(axis=1) == idx).mean()))

@@ -1,0 +1,480 @@
+"""``ground(verb, rois)``: pick the ROI that affords the verb and can be grasped, and say why.
+
+Each ROI is scored with the paper's energy (eq. 1), lower is better:
+
+    E(v, r) = alpha * E_grasp(G_r) + beta * E_aff(v, r) + gamma * E_align(r, v)
+
+* ``E_grasp = -log(max_j s_j)``, scores clipped to [1e-6, 1]; an ROI without grasps cannot be
+  acted on, so it is excluded (and listed with that reason, never dropped silently).
+* ``E_aff(v, r) = sum_o p(o | r) E_aff(v, o)`` ("expected", default) or ``E_aff(v, argmax_o p)``
+  ("argmax"), with ``p(o | r) = softmax(cos(phi_I(r), phi_T(o)) / T)`` over the scene's object
+  vocabulary: the runtime never needs a class label, only a distribution over hypotheses.
+* ``E_align = tanh(-cos(phi_I(r), phi_T(verb query)))``, the query embedded through the bundle's
+  stored template ("something to {verb}").
+
+Everything that depends only on the bundle and the options (normalized object embeddings, the
+``[V, O]`` affordance matrix in the requested form, verb queries, path index) is computed once in
+the ``Grounder`` constructor; ``ground`` is a few small matrix products (<1 ms for 10 ROIs and
+400 objects).
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+from craft_e.runtime.bundle import Bundle, PathStep
+from craft_e.runtime.energies import (
+    FORBIDDEN_ENERGY,
+    EnergyForm,
+    affordance_energy_matrix,
+    forbidden_pairs,
+    object_hypotheses,
+    weight_matrices_from_graph,
+)
+
+FloatArray = npt.NDArray[np.float32]
+AffMode = Literal["expected", "argmax"]
+
+#: Softmax temperature of p(o | r). Calibrated on the 218 shared ImageNet photos with the ConSE
+#: encoder (k = 10): mean NLL of each photo's own object over the 216-object vocabulary is 0.532
+#: at T = 0.05, 0.509 at 0.06, 0.520 at 0.07, 0.563 at 0.08 (object identities only, no affordance
+#: labels; ``craft_e.runtime.evaluation.imagenet.calibrate_temperature``).
+DEFAULT_TEMPERATURE = 0.06
+#: Temperature of the verb-similarity softmax of the open-vocabulary fallback.
+OPEN_VOCAB_TEMPERATURE = 0.05
+GRASP_SCORE_MIN = 1e-6
+
+
+class UnknownVerbError(ValueError):
+    """The verb is not in the bundle (and the open-vocabulary fallback is off)."""
+
+    def __init__(self, verb: str, kb: str, close_matches: list[str]) -> None:
+        self.verb = verb
+        self.close_matches = close_matches
+        hint = f"close matches: {', '.join(close_matches)}" if close_matches else "no close match"
+        super().__init__(
+            f"unknown verb {verb!r}: not in KB {kb} ({hint}); use one of the KB's verbs, rebuild "
+            "the KB with it, or enable the open-vocabulary fallback (open_vocab=True / --open-vocab)"
+        )
+
+
+@dataclass
+class ROI:
+    """A candidate region: box, grasp candidates with scores, and its image embedding.
+
+    ``grasps`` is opaque to the grounder (e.g. ``Grasp2D`` or 6-DoF poses) and parallel to
+    ``grasp_scores``; the chosen grasp is returned by index. ``image_embedding`` is ``phi_I(r)``
+    (``[d]``, any norm) in the bundle's text space.
+    """
+
+    box_xywh: tuple[float, float, float, float]
+    grasp_scores: Sequence[float] = ()
+    grasps: list[Any] = field(default_factory=list)
+    image_embedding: FloatArray | None = None
+    mask: npt.NDArray[np.bool_] | None = None
+    label: str | None = None
+
+
+@dataclass(frozen=True)
+class ObjectHypothesis:
+    name: str
+    probability: float
+
+
+@dataclass(frozen=True)
+class RankedROI:
+    """One scored ROI. ``paths`` explain ``E_aff`` for the top object hypothesis."""
+
+    index: int  # position in the ``rois`` passed to ``ground``
+    roi: ROI
+    e_grasp: float
+    e_aff: float
+    e_align: float
+    total: float
+    grasp_index: int
+    hypotheses: list[ObjectHypothesis]
+    paths: list[PathStep]
+    forbidden: bool  # the top hypothesis is marked "never pick" for this verb
+
+    @property
+    def grasp(self) -> Any:
+        """The chosen grasp object (``None`` when only scores were given)."""
+        return self.roi.grasps[self.grasp_index] if self.grasp_index < len(self.roi.grasps) else None
+
+
+@dataclass(frozen=True)
+class ExcludedROI:
+    index: int
+    roi: ROI
+    reason: str
+
+
+@dataclass
+class Grounding:
+    """The result of ``ground``: ranked ROIs (best first), excluded ROIs with reasons, settings."""
+
+    verb: str
+    ranked: list[RankedROI]
+    excluded: list[ExcludedROI]
+    kb: str
+    alpha: float
+    beta: float
+    gamma: float
+    temperature: float
+    aff_mode: AffMode
+    energy_form: EnergyForm
+    open_vocab_used: bool = False
+    nearest_verbs: list[tuple[str, float]] = field(default_factory=list)  # (verb, weight)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def chosen(self) -> RankedROI | None:
+        """The lowest-energy ROI, or ``None`` when every ROI was excluded."""
+        return self.ranked[0] if self.ranked else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (embeddings, masks and grasp objects left out)."""
+        def roi_dict(r: RankedROI) -> dict[str, Any]:
+            return {
+                "index": r.index, "label": r.roi.label, "box_xywh": list(r.roi.box_xywh),
+                "e_grasp": r.e_grasp, "e_aff": r.e_aff, "e_align": r.e_align, "total": r.total,
+                "grasp_index": r.grasp_index, "forbidden": r.forbidden,
+                "grasp_score": float(r.roi.grasp_scores[r.grasp_index]),
+                "hypotheses": [{"object": h.name, "p": h.probability} for h in r.hypotheses],
+                "paths": [{"property": p.prop, "object": p.obj, "w_vp": p.w_vp, "w_po": p.w_po,
+                           "records": list(p.provenance)} for p in r.paths],
+            }
+        return {
+            "verb": self.verb, "kb": self.kb,
+            "settings": {"alpha": self.alpha, "beta": self.beta, "gamma": self.gamma,
+                         "temperature": self.temperature, "aff_mode": self.aff_mode,
+                         "energy_form": self.energy_form},
+            "open_vocab_used": self.open_vocab_used,
+            "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
+            "chosen": self.chosen.index if self.chosen else None,
+            "ranked": [roi_dict(r) for r in self.ranked],
+            "excluded": [{"index": e.index, "label": e.roi.label, "box_xywh": list(e.roi.box_xywh),
+                          "reason": e.reason} for e in self.excluded],
+            "notes": list(self.notes),
+        }
+
+    def render(self, max_paths: int = 5) -> str:
+        """A terminal report: ranking with energies, exclusions, and the chosen ROI's paths."""
+        lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={self.alpha:g} beta={self.beta:g} "
+                 f"gamma={self.gamma:g}, T={self.temperature:g}, E_aff {self.energy_form}/{self.aff_mode})"]
+        if self.open_vocab_used:
+            near = ", ".join(f"{v} ({w:.2f})" for v, w in self.nearest_verbs)
+            lines.append(f"open vocabulary: {self.verb!r} is not in the KB; E_aff borrowed from {near}")
+        lines += [f"note: {n}" for n in self.notes]
+        lines.append(f"{'rank':>4} {'roi':>4} {'label':<14} {'E_total':>8} {'E_grasp':>8} {'E_aff':>8} "
+                     f"{'E_align':>8}  object hypotheses")
+        for rank, r in enumerate(self.ranked, start=1):
+            hyp = ", ".join(f"{h.name} {h.probability:.2f}" for h in r.hypotheses)
+            flag = "  [forbidden]" if r.forbidden else ""
+            lines.append(f"{rank:>4} {r.index:>4} {(r.roi.label or '-')[:14]:<14} {r.total:>8.3f} "
+                         f"{r.e_grasp:>8.3f} {r.e_aff:>8.3f} {r.e_align:>8.3f}  {hyp}{flag}")
+        for e in self.excluded:
+            lines.append(f"   - {e.index:>4} {(e.roi.label or '-')[:14]:<14} excluded: {e.reason}")
+        best = self.chosen
+        if best is None:
+            lines.append("no ROI can be chosen")
+            return "\n".join(lines)
+        top = best.hypotheses[0].name if best.hypotheses else "?"
+        lines.append(f"chosen: ROI {best.index} (box {', '.join(f'{v:g}' for v in best.roi.box_xywh)}), "
+                     f"grasp #{best.grasp_index}, most likely a {top!r}")
+        if best.paths:
+            lines.append(f"why {top!r} affords {self.verb!r}:")
+            for p in sorted(best.paths, key=lambda p: -(p.w_vp + p.w_po))[:max_paths]:
+                rec = ",".join(k[:8] for k in p.provenance)
+                lines.append(f"  {p.verb} -({p.w_vp:.2f})-> {p.prop} -({p.w_po:.2f})-> {p.obj}   [{rec}]")
+        else:
+            lines.append(f"no verb -> property -> {top!r} path in the KB")
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class EnergyTerms:
+    """Vectorized energies of ``N`` ROIs (``[N]`` each) and their hypotheses ``p`` ``[N, O]``."""
+
+    e_grasp: FloatArray
+    e_aff: FloatArray
+    e_align: FloatArray
+    total: FloatArray
+    p_obj: FloatArray
+
+
+@dataclass(frozen=True)
+class _VerbPlan:
+    """Everything ``ground`` needs about one verb: its E_aff row, query vector, explanation."""
+
+    row: FloatArray  # [O] E_aff(v, o) over the vocabulary
+    query: FloatArray  # [d] unit verb-query embedding
+    explain_verb: str | None  # whose KB paths explain the choice
+    open_vocab: bool
+    nearest: list[tuple[str, float]]
+    forbidden: frozenset[str]
+
+
+def _unit_rows(x: npt.NDArray[Any]) -> FloatArray:
+    x = np.asarray(x, dtype=np.float32)
+    out: FloatArray = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), np.float32(1e-12))
+    return out
+
+
+def _top_k(p: FloatArray, k: int) -> npt.NDArray[np.intp]:
+    """Indices of the ``k`` largest entries per row, largest first (``[N, O]`` -> ``[N, k]``);
+    a partial sort, since only a few hypotheses are reported out of hundreds of objects."""
+    k = min(k, p.shape[1])
+    if k >= p.shape[1]:
+        return np.argsort(-p, axis=1, kind="stable")
+    part = np.argpartition(-p, k - 1, axis=1)[:, :k]  # [N, k] unordered
+    order = np.argsort(-np.take_along_axis(p, part, axis=1), axis=1, kind="stable")
+    out: npt.NDArray[np.intp] = np.take_along_axis(part, order, axis=1)
+    return out
+
+
+def normalize_verb_name(raw: str) -> str:
+    """Verbs as the compiler writes them (lowercase, single spaces); never fails."""
+    from craft_e.schemas.names import normalize_verb
+
+    try:
+        return normalize_verb(raw)
+    except ValueError:
+        return " ".join(raw.strip().lower().split())
+
+
+class Grounder:
+    """Scores ROIs against verbs with one bundle; construct once, call ``ground`` per request.
+
+    ``energy_form`` ``None`` uses the form the bundle was built with (its ``.npy``); the other
+    form is recomputed from the graph's edges once. ``vocabulary`` is the scene's object
+    vocabulary for ``p(o | r)`` (default: every bundle object); names the bundle does not know
+    are embedded with the text encoder and get ``E_aff = 0`` (no path, the neutral value of both
+    forms), listed in ``objects_without_knowledge``. ``open_vocab`` lets unknown verbs borrow
+    the E_aff rows of the KB verbs most similar in embedding space.
+
+    Latency: ``ground`` is a handful of small matrix products. With OpenBLAS threads contending
+    for busy cores they can take milliseconds; set ``OPENBLAS_NUM_THREADS=1`` (the ``craft`` CLI
+    does) before numpy is imported in a latency-sensitive process.
+    """
+
+    def __init__(
+        self,
+        bundle: Bundle,
+        *,
+        alpha: float = 1.0,
+        beta: float = 1.0,
+        gamma: float = 1.0,
+        temperature: float = DEFAULT_TEMPERATURE,
+        aff_mode: AffMode = "expected",
+        energy_form: EnergyForm | None = None,
+        vocabulary: Sequence[str] | None = None,
+        open_vocab: bool = False,
+        text_encoder: Any | None = None,
+        top_k_hypotheses: int = 3,
+    ) -> None:
+        if aff_mode not in ("expected", "argmax"):
+            raise ValueError(f"aff_mode must be 'expected' or 'argmax', got {aff_mode!r}")
+        if temperature <= 0:
+            raise ValueError(f"temperature must be > 0, got {temperature}")
+        m = bundle.manifest
+        form: EnergyForm = energy_form or m.energy.form
+        if form not in ("sum-tanh", "normalized-product"):
+            raise ValueError(f"energy_form must be 'sum-tanh' or 'normalized-product', got {form!r}")
+        self.bundle = bundle
+        self.alpha, self.beta, self.gamma = float(alpha), float(beta), float(gamma)
+        self.temperature = float(temperature)
+        self.aff_mode: AffMode = aff_mode
+        self.energy_form: EnergyForm = form
+        self.open_vocab = open_vocab
+        self.top_k_hypotheses = top_k_hypotheses
+        self._text_encoder = text_encoder
+        self.kb = f"{m.kb_name}@{m.kb_version}"
+        self.verbs = list(m.verbs)
+        self.verb_index = dict(bundle.verb_index)
+
+        full = self._affordance_matrix(bundle, form)  # [V, O_bundle]
+        names = list(m.objects) if vocabulary is None else [self._object_name(o) for o in vocabulary]
+        if len(set(names)) != len(names):
+            dupes = sorted({n for n in names if names.count(n) > 1})
+            raise ValueError(f"vocabulary lists {', '.join(dupes)} more than once")
+        if not names:
+            raise ValueError("the object vocabulary is empty")
+        self.vocabulary = names
+        cols = [bundle.object_index.get(n, -1) for n in names]
+        known = np.array([c >= 0 for c in cols])
+        self.objects_without_knowledge = [n for n, c in zip(names, cols, strict=True) if c < 0]
+        obj_emb = np.zeros((len(names), bundle.embeddings["object"].shape[1]), dtype=np.float32)  # [O, d]
+        idx = np.array([max(c, 0) for c in cols])
+        obj_emb[known] = bundle.embeddings["object"][idx[known]]
+        if self.objects_without_knowledge:
+            obj_emb[~known] = self._encoder().embed(self.objects_without_knowledge)
+        self._obj_emb_t = np.ascontiguousarray(_unit_rows(obj_emb).T)  # [d, O]
+        self._eaff = np.where(known[None, :], full[:, idx], 0.0).astype(np.float32)  # [V, O]
+        self._verb_query = _unit_rows(bundle.embeddings["verb_query"])  # [V, d]
+        self._verb_emb = _unit_rows(bundle.embeddings["verb"])  # [V, d]
+        self.dim = int(obj_emb.shape[1])
+
+        self._forbidden: dict[str, frozenset[str]] = {}
+        for v, o in forbidden_pairs(bundle.graph):
+            self._forbidden[v] = self._forbidden.get(v, frozenset()) | {o}
+        # path index: verb -> [(prop, vp edge)], (prop, obj) -> po edge
+        tau = m.energy.tau
+        self._vp: dict[str, list[tuple[str, dict[str, Any]]]] = {}
+        self._po: dict[tuple[str, str], dict[str, Any]] = {}
+        for edge in bundle.graph.get("edges", []):
+            src, dst = edge["source"], edge["target"]
+            if src.startswith("verb:") and dst.startswith("prop:"):
+                self._vp.setdefault(src[5:], []).append((dst[5:], edge))
+            elif src.startswith("prop:") and dst.startswith("obj:") and edge["weight"] >= tau and edge["weight"] > 0:
+                self._po[(src[5:], dst[4:])] = edge
+        self._paths: dict[tuple[str, str], list[PathStep]] = {}
+        self._plans: dict[str, _VerbPlan] = {}
+
+    # -- precomputation ------------------------------------------------------------------------
+
+    @staticmethod
+    def _object_name(raw: str) -> str:
+        from craft_e.schemas.names import normalize_name
+
+        try:
+            return normalize_name(raw)
+        except ValueError:
+            return raw.strip().lower()
+
+    @staticmethod
+    def _affordance_matrix(bundle: Bundle, form: EnergyForm) -> FloatArray:
+        """``[V, O]`` E_aff in ``form``: the bundle's own ``.npy``, or recomputed from its graph."""
+        m = bundle.manifest
+        if form == m.energy.form:
+            return bundle.energy
+        w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
+        energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form)  # [V, O]
+        for v, o in forbidden_pairs(bundle.graph):
+            if v in bundle.verb_index and o in bundle.object_index:
+                energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
+        return energy
+
+    def _encoder(self) -> Any:
+        """The bundle's text encoder, loaded on first need (unknown objects, open vocabulary)."""
+        if self._text_encoder is None:
+            from craft_e.runtime.encoders.text import load_text_encoder
+
+            self._text_encoder = load_text_encoder(self.bundle.manifest.text_encoder.id)
+        return self._text_encoder
+
+    def _plan(self, verb: str) -> _VerbPlan:
+        cached = self._plans.get(verb)
+        if cached is not None:
+            return cached
+        vi = self.verb_index.get(verb)
+        if vi is not None:
+            plan = _VerbPlan(self._eaff[vi], self._verb_query[vi], verb, False, [],
+                             self._forbidden.get(verb, frozenset()))
+        elif self.open_vocab:
+            plan = self._open_vocab_plan(verb)
+        else:
+            raise UnknownVerbError(verb, self.kb, difflib.get_close_matches(verb, self.verbs, n=5, cutoff=0.6))
+        self._plans[verb] = plan
+        return plan
+
+    def _open_vocab_plan(self, verb: str) -> _VerbPlan:
+        """Unknown verb: E_aff = softmax-similarity-weighted mix of the KB verbs' rows."""
+        template = self.bundle.manifest.text_encoder.verb_template
+        emb = _unit_rows(self._encoder().embed([verb, template.format(verb=verb)]))  # [2, d]
+        sims = self._verb_emb @ emb[0]  # [V]
+        logits = (sims - sims.max()) / OPEN_VOCAB_TEMPERATURE
+        w = np.exp(logits)
+        w /= w.sum()
+        row = (w @ self._eaff).astype(np.float32)  # [O]
+        order = np.argsort(-w)[:3]
+        nearest = [(self.verbs[i], float(w[i])) for i in order]
+        return _VerbPlan(row, emb[1], nearest[0][0], True, nearest, frozenset())
+
+    def paths(self, verb: str, obj: str) -> list[PathStep]:
+        """verb -> property -> object paths (w_po >= tau) behind E_aff(verb, obj), cached."""
+        key = (verb, obj)
+        found = self._paths.get(key)
+        if found is None:
+            found = []
+            for prop, vp in self._vp.get(verb, []):
+                po = self._po.get((prop, obj))
+                if po is not None:
+                    found.append(PathStep(verb, prop, obj, float(vp["weight"]), float(po["weight"]),
+                                          tuple(vp["provenance"]) + tuple(po["provenance"])))
+            self._paths[key] = found
+        return found
+
+    def knows_verb(self, verb: str) -> bool:
+        """Whether ``verb`` is in the bundle (else ``ground`` needs the open-vocabulary fallback)."""
+        return normalize_verb_name(verb) in self.verb_index
+
+    # -- scoring -------------------------------------------------------------------------------
+
+    def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None) -> EnergyTerms:
+        """The three energies for ``N`` ROIs at once: ``embeddings`` ``[N, d]``, ``grasp_max``
+        ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0)."""
+        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max)
+
+    def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None) -> EnergyTerms:
+        emb = _unit_rows(embeddings)  # [N, d]
+        if emb.ndim != 2 or emb.shape[1] != self.dim:
+            raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
+                             f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
+        p = object_hypotheses(emb @ self._obj_emb_t, self.temperature)  # [N, O]
+        # expected: sum_o p(o|r) E_aff(v, o); argmax: E_aff(v, most likely o)  -> [N]
+        e_aff = p @ plan.row if self.aff_mode == "expected" else plan.row[np.argmax(p, axis=1)]
+        e_align = np.tanh(-(emb @ plan.query))  # [N]
+        e_grasp: FloatArray = np.zeros(len(emb), dtype=np.float32)  # [N]
+        if grasp_max is not None:
+            best = np.clip(np.asarray(grasp_max, dtype=np.float32), GRASP_SCORE_MIN, 1.0)  # [N]
+            e_grasp = (0.0 - np.log(best)).astype(np.float32)  # 0.0 - ...: no -0.0 for s = 1
+        total = self.alpha * e_grasp + self.beta * e_aff + self.gamma * e_align  # [N]
+        f32 = np.float32
+        return EnergyTerms(e_grasp.astype(f32), e_aff.astype(f32), e_align.astype(f32), total.astype(f32), p)
+
+    def ground(self, verb: str, rois: Sequence[ROI]) -> Grounding:
+        """Rank ``rois`` for ``verb`` (lowest total energy first); see the module docstring."""
+        name = normalize_verb_name(verb)
+        plan = self._plan(name)
+        excluded: list[ExcludedROI] = []
+        usable: list[int] = []
+        for i, roi in enumerate(rois):
+            if len(roi.grasp_scores) == 0:
+                excluded.append(ExcludedROI(i, roi, "no grasp candidates: the robot cannot pick it up"))
+            elif roi.grasps and len(roi.grasps) != len(roi.grasp_scores):
+                excluded.append(ExcludedROI(i, roi, f"{len(roi.grasps)} grasps but {len(roi.grasp_scores)} scores"))
+            elif roi.image_embedding is None:
+                excluded.append(ExcludedROI(i, roi, "no image embedding: no object hypothesis possible"))
+            else:
+                usable.append(i)
+        ranked: list[RankedROI] = []
+        if usable:
+            emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
+            best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
+            gmax = np.array([rois[i].grasp_scores[g] for i, g in zip(usable, best_grasp, strict=True)], dtype=np.float32)
+            terms = self._energies(plan, emb, gmax)
+            top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
+            top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once
+            top_i = top.tolist()
+            e_grasp, e_aff = terms.e_grasp.tolist(), terms.e_aff.tolist()
+            e_align, total = terms.e_align.tolist(), terms.total.tolist()
+            for n in np.argsort(terms.total, kind="stable").tolist():
+                hyps = [ObjectHypothesis(self.vocabulary[j], p) for j, p in zip(top_i[n], top_p[n], strict=True)]
+                obj = hyps[0].name
+                paths = self.paths(plan.explain_verb, obj) if plan.explain_verb else []
+                ranked.append(RankedROI(
+                    index=usable[n], roi=rois[usable[n]], e_grasp=e_grasp[n], e_aff=e_aff[n],
+                    e_align=e_align[n], total=total[n], grasp_index=best_grasp[n], hypotheses=hyps,
+                    paths=paths, forbidden=obj in plan.forbidden,
+                ))
+        return Grounding(
+            verb=name, ranked=ranked, excluded=excluded, kb=self.kb, alpha=self.alpha, beta=self.beta,
+            gamma=self.gamma, temperature=self.temperature, aff_mode=self.aff_mode,
+            energy_form=self.energy_form, open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
+        )

@@ -1,0 +1,117 @@
+"""ImageNet functional-grounding harness on the dev labels and tiny bundles (24 classes)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from craft_e.runtime.evaluation.common import ndcg, reciprocal_rank, topk_accuracy
+from craft_e.runtime.evaluation.imagenet import (
+    LabelsError,
+    MethodSpec,
+    default_methods,
+    evaluate_imagenet,
+    load_dataset,
+    load_labels,
+    make_episodes,
+)
+from runtime_fixtures import DEV_LABELS, RuntimeKBs, conse_fixture, runtime_kbs_fixture  # noqa: F401
+
+
+def pool(kbs: RuntimeKBs) -> list[str]:
+    return list(kbs.objects)
+
+
+def methods(kbs: RuntimeKBs, tmp: Path) -> list[MethodSpec]:
+    specs = default_methods(kbs.kb, kb_dir=tmp / "no-bundles")
+    specs[2] = MethodSpec("direct-LLM", specs[2].description, kbs.direct)
+    return specs
+
+
+def test_dataset_has_two_photos_for_crane_and_cardigan() -> None:
+    data = load_dataset()
+    assert len(data.classes) == 216 and len(data.images) == 218
+    assert len(data.class_images[data.class_index["crane"]]) == 2
+    assert len(data.class_images[data.class_index["cardigan"]]) == 2
+
+
+def test_labels_validation(tmp_path: Path) -> None:
+    classes = load_dataset().classes
+    labels = load_labels(DEV_LABELS, classes)
+    assert "_comment" not in labels and labels["cut"] == ["cleaver", "hatchet"]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"cut": ["cleavr"]}))
+    with pytest.raises(LabelsError, match="cleaver"):
+        load_labels(bad, classes)
+    bad.write_text("[1, 2]")
+    with pytest.raises(LabelsError, match="expected an object"):
+        load_labels(bad, classes)
+
+
+def test_episodes_follow_the_protocol() -> None:
+    data = load_dataset()
+    labels = load_labels(DEV_LABELS, data.classes)
+    sets, skipped = make_episodes(labels, data, episodes=50, seed=3)
+    assert not skipped and len(sets) == 2 * len(labels)
+    image_class = {i: c for c, ims in enumerate(data.class_images) for i in ims}
+    for s in sets:
+        classes = np.vectorize(image_class.get)(s.images)  # [E, 5]
+        assert s.images.shape == (50, 5)
+        assert all(len(set(row)) == 5 for row in classes.tolist())  # distinct classes
+        if s.setting == "single":
+            assert (s.relevant.sum(axis=1) == 1).all()
+        else:
+            assert (s.relevant.sum(axis=1) >= 1).all()
+    again, _ = make_episodes(labels, data, episodes=50, seed=3)
+    assert all((a.images == b.images).all() for a, b in zip(sets, again, strict=True))
+    fewer, _ = make_episodes({"cut": labels["cut"]}, data, episodes=50, seed=3)
+    assert (fewer[0].images == sets[0].images).all()  # a verb's episodes do not depend on others
+    other, _ = make_episodes(labels, data, episodes=50, seed=4)
+    assert not (other[0].images == sets[0].images).all()
+
+
+def test_metrics_by_hand() -> None:
+    energy = np.array([[0.1, 0.5, 0.3, 0.9, 0.7], [0.9, 0.2, 0.1, 0.5, 0.4]])
+    rel = np.array([[False, False, True, False, False], [True, False, False, True, False]])
+    np.testing.assert_allclose(topk_accuracy(energy, rel, 1), [0, 0])
+    np.testing.assert_allclose(topk_accuracy(energy, rel, 2), [1, 0])
+    np.testing.assert_allclose(reciprocal_rank(energy, rel), [1 / 2, 1 / 4])
+    # row 2: relevant at ranks 4 and 5 -> (1/log2 5 + 1/log2 6) / (1 + 1/log2 3)
+    want = (1 / np.log2(5) + 1 / np.log2(6)) / (1 + 1 / np.log2(3))
+    np.testing.assert_allclose(ndcg(energy, rel), [1 / np.log2(3), want], rtol=1e-6)
+
+
+def test_eval_is_deterministic_and_metrics_in_unit_interval(runtime_kbs: RuntimeKBs, conse: Any, tmp_path: Path) -> None:
+    kwargs: dict[str, Any] = {"methods": methods(runtime_kbs, tmp_path), "episodes": 40, "seed": 0,
+                              "pool": pool(runtime_kbs), "encoder": conse, "cache_dir": tmp_path / "enc"}
+    a = evaluate_imagenet(DEV_LABELS, **kwargs)
+    b = evaluate_imagenet(DEV_LABELS, **kwargs)  # second run reads the on-disk embedding cache
+    assert a.to_dict() == b.to_dict()
+    assert list((tmp_path / "enc").glob("images.*.safetensors"))
+    names = [r.name for r in a.results]
+    assert names == ["CRAFT-E", "direct-LLM", "alignment-only", "affordance-only"]
+    assert [s.name for s in a.skipped] == ["CRAFT"] and "bundle unavailable" in a.skipped[0].reason
+    for r in a.results:
+        assert set(r.metrics) == {"top1", "top2", "mrr", "ndcg"}
+        assert all(0.0 <= v <= 1.0 for v in r.metrics.values())
+        assert r.metrics["top1"] <= r.metrics["top2"]
+        assert set(r.per_verb) == set(load_labels(DEV_LABELS, load_dataset().classes))
+    by = {r.name: r.metrics for r in a.results}
+    assert by["CRAFT-E"]["mrr"] > 0.5  # well above chance (~0.46 for 1 of 5) on easy dev labels
+    c = evaluate_imagenet(DEV_LABELS, **{**kwargs, "seed": 1})
+    assert c.to_dict()["methods"] != a.to_dict()["methods"]
+    md = a.to_markdown()
+    assert "| CRAFT-E |" in md and "CRAFT** skipped" in md
+    assert a.to_dict()["config"]["labels_sha256"]
+
+
+def test_verbs_missing_from_a_bundle_use_the_flagged_fallback(runtime_kbs: RuntimeKBs, conse: Any, tmp_path: Path) -> None:
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"drink from": ["cup", "teapot"], "cut": ["cleaver"]}))
+    rep = evaluate_imagenet(labels, methods=[MethodSpec("CRAFT-E", "", runtime_kbs.kb)], episodes=10,
+                            pool=pool(runtime_kbs), encoder=conse, cache_dir=None)
+    r = rep.results[0]
+    assert r.settings["open_vocab_verbs"] == ["drink from"] and "open-vocabulary" in r.notes[0]

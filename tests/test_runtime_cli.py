@@ -1,0 +1,83 @@
+"""``craft ground`` and ``craft eval imagenet`` through the CLI (in-process, CliRunner)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from craft_e.runtime.cli import app, eval_app, parse_box, sim_app
+from runtime_fixtures import DEV_LABELS, RUNTIME_KB, RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
+from typer.testing import CliRunner
+
+runner = CliRunner()
+
+
+def test_ground_two_boxes_prints_ranking_and_writes_png(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
+    image = shared_image("teapot")
+    png, out = tmp_path / "g.png", tmp_path / "g.json"
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--verb", "pour", "--image", str(image),
+                                 "--box", "0,0,200,200", "--box", "100,50,250,250", "--plot", str(png),
+                                 "--json", str(out), "--threads", "1"])
+    assert result.exit_code == 0, result.output
+    text = result.output
+    assert "E_total" in text and "chosen: ROI" in text and "grasp scores default to 1.0" in text
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    data = json.loads(out.read_text())
+    assert data["verb"] == "pour" and len(data["ranked"]) == 2
+    assert data["ranked"][0]["total"] <= data["ranked"][1]["total"]
+    assert all(r["e_grasp"] == 0.0 for r in data["ranked"])
+
+
+def test_ground_with_rois_file_and_grasp_scores(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
+    rois = tmp_path / "rois.json"
+    rois.write_text(json.dumps({"rois": [
+        {"box": [0, 0, 150, 150], "grasp_scores": [0.2, 0.9], "label": "left"},
+        {"box": [150, 0, 150, 150], "grasp_scores": [], "label": "right"},
+    ]}))
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--verb", "cut", "--image",
+                                 str(shared_image("hatchet")), "--rois", str(rois), "--threads", "1"])
+    assert result.exit_code == 0, result.output
+    assert "excluded: no grasp candidates" in result.output and "default to 1.0" not in result.output
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--verb", "cut"], "either as --box"),
+    (["--verb", "cut", "--box", "1,2,3"], "expected x,y,w,h"),
+    (["--verb", "cutt", "--box", "0,0,50,50"], "close matches: cut"),
+])
+def test_ground_usage_errors(runtime_kbs: RuntimeKBs, args: list[str], message: str) -> None:
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--image", str(shared_image("cup")), *args])
+    assert result.exit_code == 2
+    assert message in " ".join(result.output.split())
+
+
+def test_ground_refuses_bundle_of_other_encoder(runtime_kbs: RuntimeKBs) -> None:
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.other_encoder), "--verb", "cut",
+                                 "--image", str(shared_image("cup")), "--box", "0,0,50,50"])
+    assert result.exit_code == 2 and "manifest.json" in result.output
+
+
+def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
+    """With --kb-dir empty, the baselines are reported as skipped, not silently dropped."""
+    out, md = tmp_path / "r.json", tmp_path / "r.md"
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"], "eat": ["banana", "orange"]}))
+    result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
+                                 "--kb-dir", str(tmp_path / "none"), "--episodes", "5", "--json", str(out),
+                                 "--markdown", str(md), "--no-cache", "--threads", "1",
+                                 "--classes", str(RUNTIME_KB / "objects.txt")])
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert {"CRAFT-E", "alignment-only", "affordance-only"} == set(data["methods"])
+    assert {s["method"] for s in data["skipped_methods"]} == {"CRAFT", "direct-LLM"}
+    assert "| CRAFT | skipped" in md.read_text()
+
+
+def test_sub_apps_exist_for_other_commands() -> None:
+    assert parse_box(" 1, 2,3,4 ") == (1.0, 2.0, 3.0, 4.0)
+    assert runner.invoke(app, ["eval", "--help"]).exit_code == 0
+    assert eval_app is not None and sim_app is not None
+    assert "imagenet" in runner.invoke(app, ["eval", "--help"]).output
+    assert "ground" in runner.invoke(app, ["--help"]).output
+    _ = DEV_LABELS
