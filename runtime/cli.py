@@ -55,6 +55,8 @@ COMMAND_MODULES: list[str] = [
     "craft_e.runtime.evaluation.cli_sim",
     "craft_e.runtime.evaluation.cli_static",
     "craft_e.runtime.cli_serve",
+    "craft_e.runtime.cli_robustness",
+    "craft_e.runtime.evaluation.cli_zhu",
 ]
 
 err = Console(stderr=True)

@@ -248,6 +248,19 @@ def normalize_verb_name(raw: str) -> str:
         return " ".join(raw.strip().lower().split())
 
 
+
+def affordance_energy_in_form(bundle: Bundle, form: EnergyForm) -> FloatArray:
+    """``[V, O]`` E_aff in ``form``: the bundle's own ``.npy``, or recomputed from its graph."""
+    m = bundle.manifest
+    if form == m.energy.form:
+        return bundle.energy
+    w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
+    energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form)  # [V, O]
+    for v, o in forbidden_pairs(bundle.graph):
+        if v in bundle.verb_index and o in bundle.object_index:
+            energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
+    return energy
+
 class Grounder:
     """Scores ROIs against verbs with one bundle; construct once, call ``ground`` per request.
 
@@ -349,16 +362,7 @@ class Grounder:
 
     @staticmethod
     def _affordance_matrix(bundle: Bundle, form: EnergyForm) -> FloatArray:
-        """``[V, O]`` E_aff in ``form``: the bundle's own ``.npy``, or recomputed from its graph."""
-        m = bundle.manifest
-        if form == m.energy.form:
-            return bundle.energy
-        w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
-        energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form)  # [V, O]
-        for v, o in forbidden_pairs(bundle.graph):
-            if v in bundle.verb_index and o in bundle.object_index:
-                energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
-        return energy
+        return affordance_energy_in_form(bundle, form)
 
     def _encoder(self) -> Any:
         """The bundle's text encoder, loaded on first need (unknown objects, open vocabulary)."""

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-
 from craft_e.runtime.bundle import Bundle
+from craft_e.runtime.energies import EnergyForm
+from craft_e.runtime.grounding import affordance_energy_in_form
 from craft_e.schemas.names import normalize_name
 
 #: Column name in the CSV -> the verb used in our vocabularies.
@@ -63,8 +64,11 @@ def average_precision(scores: npt.NDArray[np.float64], positives: npt.NDArray[np
     return float(np.sum((recall - recall_prev) * precision))
 
 
-def evaluate_bundle(bundle: Bundle, matrix: ZhuMatrix) -> dict[str, float]:
+def evaluate_bundle(
+    bundle: Bundle, matrix: ZhuMatrix, form: EnergyForm | None = None
+) -> dict[str, float]:
     """AP per affordance for ranking the matrix's objects by -E_aff (missing -> energy 0)."""
+    table = affordance_energy_in_form(bundle, form or bundle.manifest.energy.form)  # [V, O]
     result: dict[str, float] = {}
     obj_cols = [bundle.object_index.get(o) for o in matrix.objects]
     for verb, positives in matrix.labels.items():
@@ -73,7 +77,7 @@ def evaluate_bundle(bundle: Bundle, matrix: ZhuMatrix) -> dict[str, float]:
         if row is not None:
             for i, col in enumerate(obj_cols):
                 if col is not None:
-                    energy[i] = float(bundle.energy[row, col])
+                    energy[i] = float(table[row, col])
         result[verb] = average_precision(-energy, positives)
     return result
 
