@@ -17,7 +17,7 @@ from craft_e.paths import shared_dir
 CATALOG_FILE = Path(__file__).with_name("objects.json")
 
 
-class SharedAssetsMissing(FileNotFoundError):
+class SharedAssetsMissingError(FileNotFoundError):
     """A file the simulator needs is not under the shared folder."""
 
 
@@ -26,7 +26,7 @@ def shared_path(relative: str | Path) -> Path:
     root = shared_dir()
     path = root / relative
     if not path.exists():
-        raise SharedAssetsMissing(
+        raise SharedAssetsMissingError(
             f"shared asset not found: {path} (shared folder = {root}). "
             "Point CRAFT_SHARED at the shared/ folder that holds assets/robots and assets/objects."
         )

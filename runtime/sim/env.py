@@ -8,11 +8,12 @@ from scratch, which is what makes an episode depend only on its scene spec.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import TracebackType
 
 import pybullet as p
-
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.camera import Camera
 from craft_e.runtime.sim.gripper import GripperConfig
@@ -47,6 +48,8 @@ class SimEnv:
         self.config = config or EnvConfig()
         self.client: int = p.connect(p.DIRECT)
         self.steps = 0
+        # Called after every step with the step count; for recording videos, never for control.
+        self.step_hook: Callable[[int], None] | None = None
         self._robot: CR3Robot | None = None
         self._scene: Scene | None = None
 
@@ -82,7 +85,9 @@ class SimEnv:
         """Advance physics ``n`` steps; the only clock an episode has."""
         for _ in range(n):
             p.stepSimulation(physicsClientId=self.client)
-        self.steps += n
+            self.steps += 1
+            if self.step_hook is not None:
+                self.step_hook(self.steps)
 
     def reset(self, spec: SceneSpec) -> Scene:
         """Empty the world, load robot and table, place and settle the spec's objects."""
@@ -98,8 +103,9 @@ class SimEnv:
         )
         p.setGravity(0.0, 0.0, physics.gravity, physicsClientId=self.client)
         self.steps = 0
+        arm = dataclasses.replace(self.config.arm, time_step=physics.time_step)
         self._robot = CR3Robot(
-            self.client, self.step, config=self.config.arm, gripper_config=self.config.gripper
+            self.client, self.step, config=arm, gripper_config=self.config.gripper
         )
         self._scene = make_scene(spec, self.client, self.config.layout, self.config.camera)
         return self._scene

@@ -99,13 +99,14 @@ class ParallelGripper:
             found.append(frozenset(int(c[2]) for c in points if c[2] != self.body_id))
         return FingerContacts(found[0], found[1])
 
-    def check_grasp(self) -> int | None:
+    def check_grasp(self, ignore: frozenset[int] = frozenset()) -> int | None:
         """Body pinched between both fingers, or None.
 
         Both fingers must touch it (one-sided contact is a push, not a grasp) and the fingers must
-        not have met. With several candidates the lowest id wins, for determinism.
+        not have met. ``ignore`` holds static bodies (the table) that fingertips may graze. With
+        several candidates the lowest id wins, for determinism.
         """
         if self.width() < self.config.min_held_width:
             return None
-        pinched = self.contacts().pinched
+        pinched = self.contacts().pinched - ignore
         return min(pinched) if pinched else None

@@ -39,7 +39,10 @@ def axis_angle_matrix(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArra
     """Rodrigues rotation about a unit axis."""
     k = axis / np.linalg.norm(axis)
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+    out: npt.NDArray[np.float64] = (
+        np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+    )
+    return out
 
 
 @dataclass(frozen=True)

@@ -68,7 +68,8 @@ def corners(footprint: Footprint, pose: PlanarPose, margin: float = 0.0) -> Floa
     local = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
     rot = np.array([[c, -s], [s, c]])
-    return local @ rot.T + np.array([pose.x, pose.y])
+    out: FloatArray = local @ rot.T + np.array([pose.x, pose.y])
+    return out
 
 
 def rects_overlap(a: FloatArray, b: FloatArray) -> bool:

@@ -18,7 +18,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pybullet_data
-
 from craft_e.runtime.sim.assets import shared_path
 
 CR3_DIR = "assets/robots/dobot_cr3"
@@ -32,9 +31,14 @@ FLANGE_LINK = "Link6"
 HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
 FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
 TCP_LINK = "tcp"
+HAND_JOINT = "flange_to_hand"  # fixed joint whose child link is the hand
+TCP_JOINT = "hand_to_tcp"
 # Distance from the hand base to the point between the finger pads, along the approach axis.
 # The Franka grasp target sits at 0.105 m; the pad centres are ~0.1 m down the hand.
 TCP_OFFSET = 0.1034
+# How far the finger tips reach below the TCP (finger collision mesh, measured: tips at 0.117 m
+# down the hand). The executor keeps the TCP at least this high above the table.
+FINGERTIP_BELOW_TCP = 0.0136
 FINGER_FRICTION = 1.5  # rubber-like pads; pybullet multiplies this with the object's friction
 
 
@@ -90,7 +94,9 @@ def _inertial(mass: float) -> ET.Element:
     inertial = ET.Element("inertial")
     ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
     ET.SubElement(inertial, "mass", value=f"{mass}")
-    ET.SubElement(inertial, "inertia", ixx="1e-6", ixy="0", ixz="0", iyy="1e-6", iyz="0", izz="1e-6")
+    ET.SubElement(
+        inertial, "inertia", ixx="1e-6", ixy="0", ixz="0", iyy="1e-6", iyz="0", izz="1e-6"
+    )
     return inertial
 
 
@@ -108,9 +114,9 @@ def compose_urdf_text() -> str:
     _fix_cr3(cr3_root, shared_path(f"{CR3_DIR}/meshes"))
     panda_root = ET.parse(PANDA_URDF).getroot()
     cr3_root.extend(_hand_elements(panda_root, PANDA_URDF.parent))
-    cr3_root.append(_fixed_joint("flange_to_hand", FLANGE_LINK, "panda_hand", "0 0 0"))
+    cr3_root.append(_fixed_joint(HAND_JOINT, FLANGE_LINK, "panda_hand", "0 0 0"))
     cr3_root.append(_tcp_link())
-    cr3_root.append(_fixed_joint("hand_to_tcp", "panda_hand", TCP_LINK, f"0 0 {TCP_OFFSET}"))
+    cr3_root.append(_fixed_joint(TCP_JOINT, "panda_hand", TCP_LINK, f"0 0 {TCP_OFFSET}"))
     ET.indent(cr3_root)
     return ET.tostring(cr3_root, encoding="unicode")
 

@@ -9,13 +9,11 @@ the same poses bit for bit in a fresh client.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
-
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.assets import object_asset
 from craft_e.runtime.sim.camera import Camera, render
@@ -26,6 +24,7 @@ from craft_e.runtime.sim.placement import (
     Rect,
     sample_layout,
 )
+from craft_e.runtime.sim.transforms import rpy_to_quat
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -47,15 +46,22 @@ class SurfaceModel:
 class TableLayout:
     """Geometry of the testbed, in the robot base frame."""
 
-    table_center: tuple[float, float] = (0.45, 0.0)
-    table_half_size: tuple[float, float, float] = (0.35, 0.55, 0.025)
+    # The arm stands on the table top; the table reaches behind it to hold the drop zone.
+    table_center: tuple[float, float] = (0.325, 0.0)
+    table_half_size: tuple[float, float, float] = (0.475, 0.60, 0.025)
     table_rgba: tuple[float, float, float, float] = (0.62, 0.52, 0.40, 1.0)
     placement: PlacementConfig = field(default_factory=PlacementConfig)
-    # Out of the overhead camera's view, so the marker never shows up as an ROI.
-    drop_zone: Rect = Rect(0.14, 0.30, -0.50, -0.38)
+    # Beside the arm's base: reachable up to 0.35 m high (tall objects are released high), and
+    # its marker lies outside the overhead camera's view (x > 0.10 at table height), so it never
+    # shows up as an ROI. 24 x 22 cm, so an object held off-centre still lands inside.
+    drop_zone: Rect = field(default_factory=lambda: Rect(-0.10, 0.14, -0.51, -0.29))
     drop_zone_rgba: tuple[float, float, float, float] = (0.35, 0.65, 0.35, 1.0)
     spawn_clearance: float = 0.003  # m between an object's lowest point and the table at spawn
-    settle_steps: int = 240
+    settle_steps: int = 240  # always stepped...
+    settle_max_steps: int = 1200  # ...then more, in chunks, until everything is at rest
+    settle_chunk: int = 60
+    rest_linear_speed: float = 0.005  # m/s
+    rest_angular_speed: float = 0.05  # rad/s
     surface: SurfaceModel = field(default_factory=SurfaceModel)
 
     @property
@@ -153,19 +159,25 @@ def build_table(client: int, layout: TableLayout) -> tuple[int, int]:
     hx, hy, hz = layout.table_half_size
     cx, cy = layout.table_center
     table = _box(client, (hx, hy, hz), (cx, cy, layout.table_z - hz), layout.table_rgba)
-    p.changeDynamics(table, -1, lateralFriction=layout.surface.lateral_friction, physicsClientId=client)
+    p.changeDynamics(
+        table, -1, lateralFriction=layout.surface.lateral_friction, physicsClientId=client
+    )
     dz = layout.drop_zone
+    visible_x_max = 0.09  # keep the (cosmetic) marker out of the camera's view
+    marker_x = (dz.x_min, min(dz.x_max, visible_x_max))
     marker = _box(
         client,
-        ((dz.x_max - dz.x_min) / 2, (dz.y_max - dz.y_min) / 2, 0.0005),
-        (*dz.center, layout.table_z + 0.0005),
+        ((marker_x[1] - marker_x[0]) / 2, (dz.y_max - dz.y_min) / 2, 0.0005),
+        ((marker_x[0] + marker_x[1]) / 2, dz.center[1], layout.table_z + 0.0005),
         layout.drop_zone_rgba,
         collide=False,
     )
     return table, marker
 
 
-def _load_object(client: int, asset_id: str, surface: SurfaceModel) -> tuple[int, FloatArray, FloatArray]:
+def _load_object(
+    client: int, asset_id: str, surface: SurfaceModel
+) -> tuple[int, FloatArray, FloatArray]:
     """Load at the origin, unrotated, to read the object-frame AABB; returns (id, min, max)."""
     asset = object_asset(asset_id)
     body = p.loadURDF(
@@ -226,8 +238,7 @@ def make_scene(
                 local_aabb_max=(float(hi[0]), float(hi[1]), float(hi[2])),
             )
         )
-    for _ in range(layout.settle_steps):
-        p.stepSimulation(physicsClientId=client)
+    _settle(client, [o.body_id for o in objects], layout)
     return Scene(
         client=client,
         spec=spec,
@@ -237,6 +248,26 @@ def make_scene(
         camera=camera or Camera(),
         layout=layout,
     )
+
+
+def _settle(client: int, bodies: list[int], layout: TableLayout) -> None:
+    """Step until every object is at rest (a tall bottle may take a second to topple).
+
+    The stopping rule reads only the physics state, so it stays deterministic per seed.
+    """
+    steps = 0
+    while steps < layout.settle_max_steps:
+        chunk = layout.settle_steps if steps == 0 else layout.settle_chunk
+        for _ in range(chunk):
+            p.stepSimulation(physicsClientId=client)
+        steps += chunk
+        speeds = [p.getBaseVelocity(b, physicsClientId=client) for b in bodies]
+        if all(
+            np.linalg.norm(lin) < layout.rest_linear_speed
+            and np.linalg.norm(ang) < layout.rest_angular_speed
+            for lin, ang in speeds
+        ):
+            return
 
 
 def _place(
@@ -249,16 +280,10 @@ def _place(
 ) -> None:
     x, y = pose.body_xy(footprint)
     z = layout.table_z - local_min_z + layout.spawn_clearance
-    quat = p.getQuaternionFromEuler([0.0, 0.0, pose.yaw])
+    quat = rpy_to_quat(0.0, 0.0, pose.yaw)
     p.resetBasePositionAndOrientation(body, [x, y, z], quat, physicsClientId=client)
 
 
 def capture(scene: Scene) -> Observation:
     """Render the scene's camera: RGB, metric depth, body-id segmentation, intrinsics, pose."""
     return render(scene.client, scene.camera)
-
-
-def yaw_of(quaternion: FloatArray) -> float:
-    """Heading of a body's x axis in the world x-y plane."""
-    m = np.array(p.getMatrixFromQuaternion(list(quaternion)), dtype=np.float64).reshape(3, 3)
-    return math.atan2(float(m[1, 0]), float(m[0, 0]))

@@ -1,0 +1,253 @@
+"""Execute one top-down pick-and-place and judge it from the physics state.
+
+Pre-grasp above, straight descent, close, lift, transport to the drop zone, release. Every
+motion is planned (IK, checked by forward kinematics) before the arm moves, so an unreachable
+grasp costs no simulation and is reported as ``ik_failure``. Success is read from where the
+target body is, not from what the controller believes: it must have been held, lifted, and come
+to rest inside the drop zone.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+import numpy.typing as npt
+import pybullet as p
+from craft_e.runtime.grasp.geometry import TopDownGrasp
+from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.robot import CR3Robot, IKSolution
+from craft_e.runtime.sim.robot_urdf import FINGERTIP_BELOW_TCP
+from craft_e.runtime.sim.scene import Scene
+
+
+class Outcome(StrEnum):
+    """How a pick ended. ``wrong_object`` is also what a caller records when the chosen ROI is
+    not the target, without running the pick."""
+
+    SUCCESS = "success"
+    NO_GRASP = "no_grasp"  # no grasp candidate was given for the chosen ROI
+    IK_FAILURE = "ik_failure"  # a planned waypoint is out of reach
+    MISSED = "missed"  # the fingers closed on nothing
+    LIFT_FAILED = "lift_failed"  # something was pinched but it did not come up with the hand
+    WRONG_OBJECT = "wrong_object"  # the hand lifted a body other than the target
+    SLIP_DURING_TRANSPORT = "slip_during_transport"  # held after the lift, lost on the way
+    OUTSIDE_DROP_ZONE = "outside_drop_zone"  # released but came to rest outside the zone
+
+
+@dataclass(frozen=True)
+class PickConfig:
+    """Heights and tolerances of the pick (metres)."""
+
+    approach_height: float = 0.10  # pre-grasp above the grasp pose
+    insertion_depth: float = 0.03  # TCP below the grasped surface point
+    table_clearance: float = 0.004  # finger tips above the table at the lowest
+    lift_height: float = 0.15
+    lift_inward_steps: int = 5  # if straight up is out of reach, pull the lift point inwards...
+    lift_inward_step: float = 0.02  # ...by this much per try
+    min_lift_rise: float = 0.10  # the target must rise this much to count as lifted
+    slip_tolerance: float = 0.03  # m the held body may shift in the hand before it counts as lost
+    release_clearance: float = 0.03  # object bottom above the table when released
+    min_transport_gap: float = 0.05  # carry at least this far above the release height
+    retreat_height: float = 0.10
+    release_settle_steps: int = 120
+
+
+@dataclass(frozen=True)
+class PickResult:
+    """Outcome plus the physical evidence behind it."""
+
+    outcome: Outcome
+    held_body: int | None  # what the fingers held after the lift (None if nothing)
+    target_rise: float  # m the target's centre rose by the end of the lift
+    target_final_xyz: tuple[float, float, float]
+    steps: int  # simulation steps the pick took
+    detail: str = ""
+
+
+@dataclass(frozen=True)
+class _Plan:
+    pre: IKSolution
+    descent: list[IKSolution]
+    lift: list[IKSolution]
+    transport: list[IKSolution]
+    lower: list[IKSolution]
+    grasp_z: float
+
+
+def _all_ok(robot: CR3Robot, solutions: list[IKSolution]) -> bool:
+    return all(s.ok(robot.config) for s in solutions)
+
+
+def _plan(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -> _Plan | str:
+    """All waypoints of the pick, or a string saying which one is unreachable."""
+    table_z = scene.layout.table_z
+    x, y = float(grasp.position[0]), float(grasp.position[1])
+    grasp_z = max(
+        float(grasp.position[2]) - cfg.insertion_depth,
+        table_z + FINGERTIP_BELOW_TCP + cfg.table_clearance,
+    )
+    yaw = robot.nearest_yaw(grasp.yaw, robot.tcp_pose().yaw)
+    pre = robot.solve_ik((x, y, grasp_z + cfg.approach_height), yaw)
+    if not pre.ok(robot.config):
+        return f"pre-grasp ({x:.3f}, {y:.3f}, {grasp_z + cfg.approach_height:.3f}) unreachable"
+    descent = robot.plan_linear(pre.q, (x, y, grasp_z), yaw)
+    if not _all_ok(robot, descent):
+        return f"grasp pose ({x:.3f}, {y:.3f}, {grasp_z:.3f}) unreachable"
+    lift: list[IKSolution] = []
+    for i in range(cfg.lift_inward_steps + 1):
+        radius = math.hypot(x, y)
+        shrink = max(0.0, 1.0 - i * cfg.lift_inward_step / radius) if radius > 0 else 1.0
+        lift = robot.plan_linear(
+            descent[-1].q, (x * shrink, y * shrink, grasp_z + cfg.lift_height), yaw
+        )
+        if _all_ok(robot, lift):
+            break
+    else:
+        return f"no reachable lift of {cfg.lift_height} m above ({x:.3f}, {y:.3f})"
+    lift_end = robot.forward(lift[-1].q).position
+    dz = scene.layout.drop_zone
+    drop_x, drop_y = dz.center
+    drop_yaw = robot.nearest_yaw(0.0, yaw)
+    # Carry at the lift height if the zone is reachable there, else lower: the arm's reach
+    # shrinks with height and the zone lies near its edge.
+    release_z = grasp_z + cfg.release_clearance
+    heights = np.arange(float(lift_end[2]), release_z + cfg.min_transport_gap, -0.02)
+    transport: list[IKSolution] = []
+    for height in heights:
+        transport = robot.plan_linear(lift[-1].q, (drop_x, drop_y, float(height)), drop_yaw)
+        if _all_ok(robot, transport):
+            break
+    else:
+        return f"drop zone ({drop_x:.3f}, {drop_y:.3f}) unreachable below z={lift_end[2]:.3f}"
+    lower = robot.plan_linear(transport[-1].q, (drop_x, drop_y, release_z), drop_yaw)
+    if not _all_ok(robot, lower):
+        return f"release pose ({drop_x:.3f}, {drop_y:.3f}, {release_z:.3f}) unreachable"
+    return _Plan(pre, descent, lift, transport, lower, grasp_z)
+
+
+def _body_z(scene: Scene, body: int) -> float:
+    return float(scene.pose(body)[0][2])
+
+
+class _InHand:
+    """Motion monitor: is ``body`` still held?
+
+    Held means pinched between both fingers, or still where it was in the hand when the motion
+    started. Either alone misjudges: contact lists flicker from step to step on small objects
+    that are held perfectly well, and a long object pinched off-centre may swing about the
+    fingers without being lost. A real slip fails both.
+    """
+
+    def __init__(self, robot: CR3Robot, scene: Scene, body: int, cfg: PickConfig) -> None:
+        self.robot, self.scene, self.body = robot, scene, body
+        self.tolerance = cfg.slip_tolerance
+        self.ignore = frozenset({scene.table_id})
+        self.offset = self._offset()
+
+    def _offset(self) -> npt.NDArray[np.float64]:
+        tcp = self.robot.tcp_pose()
+        offset: npt.NDArray[np.float64] = tcp.rotation.T @ (
+            self.scene.pose(self.body)[0] - tcp.position
+        )
+        return offset
+
+    def __call__(self) -> bool:
+        if float(np.linalg.norm(self._offset() - self.offset)) <= self.tolerance:
+            return True
+        return self.robot.gripper.check_grasp(self.ignore) == self.body
+
+
+@dataclass
+class _Progress:
+    """What a pick has established so far, to build its result from any exit point."""
+
+    env: SimEnv
+    target_body: int
+    start_steps: int
+    start_z: float
+    rise: float = 0.0
+
+    def measure_rise(self) -> float:
+        self.rise = _body_z(self.env.scene, self.target_body) - self.start_z
+        return self.rise
+
+    def finish(self, outcome: Outcome, held: int | None, detail: str = "") -> PickResult:
+        pos = self.env.scene.pose(self.target_body)[0]
+        return PickResult(
+            outcome=outcome,
+            held_body=held,
+            target_rise=self.rise,
+            target_final_xyz=(float(pos[0]), float(pos[1]), float(pos[2])),
+            steps=self.env.steps - self.start_steps,
+            detail=detail,
+        )
+
+
+def execute_pick(
+    env: SimEnv,
+    grasp: TopDownGrasp | None,
+    target_body: int,
+    config: PickConfig | None = None,
+) -> PickResult:
+    """Run the pick in ``env``'s current scene and classify what happened."""
+    cfg = config or PickConfig()
+    robot, scene = env.robot, env.scene
+    progress = _Progress(env, target_body, env.steps, _body_z(scene, target_body))
+    ignore = frozenset({scene.table_id})
+    if grasp is None:
+        return progress.finish(Outcome.NO_GRASP, None, "no grasp candidate")
+    plan = _plan(robot, scene, grasp, cfg)
+    if isinstance(plan, str):
+        return progress.finish(Outcome.IK_FAILURE, None, plan)
+
+    robot.gripper.open()
+    robot.follow([plan.pre.q])
+    robot.follow([s.q for s in plan.descent])
+    robot.gripper.close()
+    pinched = robot.gripper.check_grasp(ignore)
+    if pinched is None:
+        return progress.finish(Outcome.MISSED, None, "fingers closed on nothing")
+
+    lifted = robot.follow([s.q for s in plan.lift], monitor=_InHand(robot, scene, pinched, cfg))
+    rise = progress.measure_rise()
+    if not lifted:
+        return progress.finish(
+            Outcome.LIFT_FAILED, None, f"lost the grip while lifting (target rose {rise:.3f} m)"
+        )
+    if pinched != target_body:
+        return progress.finish(
+            Outcome.WRONG_OBJECT, pinched, f"lifted body {pinched}, target is {target_body}"
+        )
+    if rise < cfg.min_lift_rise:
+        return progress.finish(Outcome.LIFT_FAILED, pinched, f"target rose only {rise:.3f} m")
+
+    in_hand = _InHand(robot, scene, target_body, cfg)
+    carried = robot.follow([s.q for s in plan.transport], monitor=in_hand)
+    if carried:
+        carried = robot.follow([s.q for s in plan.lower], monitor=in_hand)
+    if not carried:
+        return progress.finish(Outcome.SLIP_DURING_TRANSPORT, None, "target lost during transport")
+    robot.gripper.open()
+    retreat = robot.forward(plan.lower[-1].q).position + np.array([0.0, 0.0, cfg.retreat_height])
+    robot.move_linear(retreat, robot.tcp_pose().yaw)
+    env.step(cfg.release_settle_steps)
+
+    in_zone = _in_drop_zone(scene, target_body)
+    return progress.finish(
+        Outcome.SUCCESS if in_zone else Outcome.OUTSIDE_DROP_ZONE,
+        target_body,
+        "" if in_zone else "target came to rest outside the drop zone",
+    )
+
+
+def _in_drop_zone(scene: Scene, body: int) -> bool:
+    """Centre of mass over the zone, and the body in contact with the table (not still held,
+    not lying on another object)."""
+    position = scene.pose(body)[0]
+    dz = scene.layout.drop_zone
+    over = dz.x_min <= position[0] <= dz.x_max and dz.y_min <= position[1] <= dz.y_max
+    on_table = bool(p.getContactPoints(body, scene.table_id, physicsClientId=scene.client))
+    return bool(over and on_table)

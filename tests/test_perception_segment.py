@@ -1,0 +1,99 @@
+"""Class-agnostic RGB-D segmentation: plane fit, thin objects, and agreement with GT boxes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from craft_e.runtime.grasp.geometry import CameraIntrinsics
+from craft_e.runtime.perception.observation import Observation
+from craft_e.runtime.perception.plane import fit_plane
+from craft_e.runtime.perception.roi import best_box_matches, box_iou, roi_from_mask
+from craft_e.runtime.perception.segment import SegmentConfig, segment
+from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.oracle import gt_rois
+from craft_e.runtime.sim.scene import SceneSpec
+
+TABLE_RGB = (168, 140, 108)
+
+
+def _synthetic_table(height_map: np.ndarray, rgb: np.ndarray) -> Observation:
+    """A camera 0.7 m above a table, looking straight down, seeing ``height_map`` (metres)."""
+    h, w = height_map.shape
+    intrinsics = CameraIntrinsics.realsense_d435(w, h)
+    cam_to_world = np.diag([1.0, -1.0, -1.0, 1.0])
+    cam_to_world[2, 3] = 0.7
+    return Observation(
+        rgb=rgb,
+        depth=(0.7 - height_map).astype(np.float32),
+        intrinsics=intrinsics,
+        cam_to_world=cam_to_world,
+    )
+
+
+def test_plane_fit_recovers_a_tilted_plane_despite_clutter() -> None:
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-0.3, 0.3, (4000, 2))
+    normal = np.array([0.1, -0.05, 1.0]) / np.linalg.norm([0.1, -0.05, 1.0])
+    z = (0.6 * normal[2] - xy @ normal[:2]) / normal[2] + rng.normal(0, 0.0005, len(xy))
+    table = np.column_stack([xy, z])
+    clutter = np.column_stack([rng.uniform(-0.3, 0.3, (1500, 2)), rng.uniform(0.3, 0.55, 1500)])
+    plane, inliers = fit_plane(np.vstack([table, clutter]))
+    assert 0.9 * len(table) <= inliers <= len(table) + 20  # the table, not the clutter
+    assert abs(abs(float(plane.normal @ normal)) - 1.0) < 1e-3
+
+
+def test_colour_cue_recovers_an_object_too_flat_for_the_depth_threshold() -> None:
+    height = np.zeros((120, 160))
+    rgb = np.broadcast_to(np.array(TABLE_RGB, np.uint8), (120, 160, 3)).copy()
+    height[40:60, 20:140] = 0.002  # a 2 mm blade: below the 5 mm height threshold
+    rgb[40:60, 20:140] = (200, 200, 210)
+    height[80:100, 60:90] = 0.03  # a normal object
+    obs = _synthetic_table(height, rgb)
+
+    with_cue = segment(obs, SegmentConfig(min_area=50)).rois
+    depth_only = segment(obs, SegmentConfig(min_area=50, colour_cue=False)).rois
+    blade = (20, 40, 120, 20)
+    assert max(box_iou(blade, r.box_xywh) for r in with_cue) > 0.9
+    assert max((box_iou(blade, r.box_xywh) for r in depth_only), default=0.0) < 0.1
+    assert len(with_cue) == 2 and len(depth_only) == 1
+
+
+def test_roi_geometry() -> None:
+    mask = np.zeros((10, 12), dtype=bool)
+    mask[2:5, 3:9] = True
+    roi = roi_from_mask(mask, label=7)
+    assert roi.box_xywh == (3, 2, 6, 3)
+    assert roi.area == 18 and roi.label == 7
+    assert roi.centroid == pytest.approx((5.5, 3.0))
+    assert box_iou((0, 0, 10, 10), (5, 0, 10, 10)) == pytest.approx(50 / 150)
+    with pytest.raises(ValueError, match="empty"):
+        roi_from_mask(np.zeros((3, 3), dtype=bool))
+
+
+def test_predicted_rois_match_ground_truth_boxes_including_thin_tools() -> None:
+    spec = SceneSpec(
+        verb="cut",
+        target="knife",
+        distractors=("flat_screwdriver", "scissors", "a_cups", "glue_1"),
+        seed=11,
+    )
+    with SimEnv() as env:
+        scene = env.reset(spec)
+        obs = env.capture()
+        assert obs.seg is not None
+        assert not np.any(obs.seg == env.robot.body_id), "the arm at home must be out of view"
+        assert not np.any(obs.seg == scene.drop_marker_id), "the drop-zone marker is in view"
+    reference = gt_rois(obs, scene)
+    assert len(reference) == 5, "every object should be visible to the camera"
+    predicted = segment(obs).rois
+    ious = dict(
+        zip(
+            [scene.body_assets[r.label] for r in reference if r.label is not None],
+            best_box_matches(predicted, reference),
+            strict=True,
+        )
+    )
+    assert ious["knife"] >= 0.5, ious
+    assert ious["flat_screwdriver"] >= 0.5, ious
+    assert sum(iou >= 0.5 for iou in ious.values()) >= 4, ious
+    assert len(predicted) <= len(reference) + 1, "spurious ROIs on an empty table"

@@ -1,0 +1,80 @@
+"""Pick-and-place episodes, judged from physics: success, and each way of failing."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from craft_e.runtime.grasp.geometry import TopDownGrasp
+from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.episode import Outcome, PickResult, execute_pick
+from craft_e.runtime.sim.oracle import oracle_grasp
+from craft_e.runtime.sim.scene import SceneSpec
+
+EASY = SceneSpec(
+    verb="pour",
+    target="mustard_bottle",
+    distractors=("foam_brick", "knife", "apple", "stapler_2"),
+    seed=2,
+)
+
+
+@pytest.fixture(scope="module")
+def env() -> Iterator[SimEnv]:
+    with SimEnv() as sim:
+        yield sim
+
+
+def _oracle_pick(env: SimEnv, spec: SceneSpec) -> tuple[PickResult, dict[int, np.ndarray]]:
+    scene = env.reset(spec)
+    before = {o.body_id: scene.pose(o.body_id)[0] for o in scene.objects}
+    grasp = oracle_grasp(scene, scene.target.body_id)
+    assert grasp is not None
+    return execute_pick(env, grasp, scene.target.body_id), before
+
+
+def test_oracle_pick_of_an_easy_object_succeeds_and_is_deterministic(env: SimEnv) -> None:
+    result, before = _oracle_pick(env, EASY)
+    scene = env.scene
+    target = scene.target.body_id
+    assert result.outcome is Outcome.SUCCESS, result
+    assert result.held_body == target
+    assert result.target_rise > 0.12  # lifted ~15 cm
+    zone = scene.layout.drop_zone
+    x, y, _ = result.target_final_xyz
+    assert zone.x_min <= x <= zone.x_max and zone.y_min <= y <= zone.y_max
+    for body, position in before.items():  # the distractors were left where they were
+        if body != target:
+            assert np.linalg.norm(scene.pose(body)[0] - position) < 0.01, scene.body_assets[body]
+    assert 500 < result.steps < 4000
+
+    again, _ = _oracle_pick(env, EASY)
+    assert again == result  # same seed: same steps, same final pose to the last bit
+
+
+def test_closing_on_empty_table_is_a_miss(env: SimEnv) -> None:
+    scene = env.reset(EASY)
+    positions = np.array([scene.pose(o.body_id)[0][:2] for o in scene.objects])
+    grid = np.array(
+        [(x, y) for x in np.linspace(0.25, 0.5, 11) for y in np.linspace(-0.2, 0.2, 17)]
+    )
+    clearance = np.min(np.linalg.norm(grid[:, None, :] - positions[None], axis=2), axis=1)
+    empty = grid[int(np.argmax(clearance))]
+    assert clearance.max() > 0.1
+    grasp = TopDownGrasp(position=np.array([empty[0], empty[1], 0.0]), yaw=0.3, width_m=0.05)
+    result = execute_pick(env, grasp, scene.target.body_id)
+    assert result.outcome is Outcome.MISSED, result
+    assert result.held_body is None and abs(result.target_rise) < 1e-3
+
+
+def test_no_grasp_and_unreachable_grasp_end_without_moving(env: SimEnv) -> None:
+    scene = env.reset(EASY)
+    q0 = env.robot.joint_positions()
+    none = execute_pick(env, None, scene.target.body_id)
+    assert none.outcome is Outcome.NO_GRASP and none.steps == 0
+    far = TopDownGrasp(position=np.array([0.95, 0.0, 0.05]), yaw=0.0, width_m=0.05)
+    unreachable = execute_pick(env, far, scene.target.body_id)
+    assert unreachable.outcome is Outcome.IK_FAILURE and unreachable.steps == 0
+    assert "unreachable" in unreachable.detail
+    assert np.array_equal(env.robot.joint_positions(), q0)

@@ -1,0 +1,117 @@
+"""The CR3 loads with the documented URDF fixes, its FK model agrees with pybullet, IK reaches."""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+
+import numpy as np
+import pybullet as p
+import pytest
+from craft_e.runtime.sim.assets import shared_path
+from craft_e.runtime.sim.robot import CR3Robot, top_down_rotation
+from craft_e.runtime.sim.robot_urdf import (
+    CR3_URDF,
+    FINGERTIP_BELOW_TCP,
+    TCP_OFFSET,
+    robot_urdf_path,
+)
+
+
+@pytest.fixture(scope="module")
+def robot() -> Iterator[CR3Robot]:
+    client = p.connect(p.DIRECT)
+    p.setGravity(0, 0, -9.81, physicsClientId=client)
+
+    def step(n: int) -> None:
+        for _ in range(n):
+            p.stepSimulation(physicsClientId=client)
+
+    try:
+        yield CR3Robot(client, step)
+    finally:
+        p.disconnect(physicsClientId=client)
+
+
+def test_composed_urdf_applies_the_fixes_and_leaves_shared_untouched() -> None:
+    upstream = shared_path(CR3_URDF).read_text(encoding="utf-8")
+    assert "package://dobot_rviz" in upstream, "shared CR3 URDF was modified"
+    root = ET.parse(robot_urdf_path()).getroot()
+    meshes = [m.attrib["filename"] for m in root.iter("mesh")]
+    assert meshes and all(not f.startswith("package://") for f in meshes)
+    assert all(f.startswith("/") for f in meshes)
+    arm_limits = [j.find("limit") for j in root.findall("joint") if j.attrib["name"][:5] == "joint"]
+    assert len(arm_limits) == 6
+    assert all(float(lim.attrib["effort"]) > 0 for lim in arm_limits if lim is not None)
+    assert all(float(lim.attrib["velocity"]) > 0 for lim in arm_limits if lim is not None)
+    names = [m.attrib["name"] for link in root.iter("link") for m in link.iter("material")]
+    cr3_names = [n for n in names if n.startswith("cr3_")]
+    assert len(cr3_names) == 7 and len(set(cr3_names)) == 7 and "" not in names
+
+
+def test_fk_model_matches_pybullet(robot: CR3Robot) -> None:
+    rng = np.random.default_rng(0)
+    client = robot.client
+    saved = robot.joint_positions()
+    for _ in range(5):
+        q = rng.uniform(-2.0, 2.0, 6)
+        for joint, value in zip(robot.arm_joints, q, strict=True):
+            p.resetJointState(robot.body_id, joint, float(value), physicsClientId=client)
+        measured = robot.tcp_pose()
+        model = robot.forward(q)
+        assert np.allclose(measured.position, model.position, atol=1e-6)
+        assert np.allclose(measured.rotation, model.rotation, atol=1e-6)
+    for joint, value in zip(robot.arm_joints, saved, strict=True):
+        p.resetJointState(robot.body_id, joint, float(value), physicsClientId=client)
+
+
+def test_tcp_sits_between_the_finger_tips(robot: CR3Robot) -> None:
+    hand_state = p.getLinkState(robot.body_id, robot.hand_link, physicsClientId=robot.client)
+    tcp = robot.tcp_pose()
+    assert np.linalg.norm(tcp.position - np.array(hand_state[4])) == pytest.approx(TCP_OFFSET)
+    tips = [
+        p.getAABB(robot.body_id, j, physicsClientId=robot.client)[0][2]
+        for j in robot.gripper.finger_joints
+    ]  # gripper points down at home: the lowest AABB point is the tip
+    for tip in tips:
+        assert tcp.position[2] - tip == pytest.approx(FINGERTIP_BELOW_TCP, abs=0.003)
+
+
+@pytest.mark.parametrize(
+    ("position", "yaw"),
+    [
+        ((0.30, 0.00, 0.10), 0.0),
+        ((0.45, 0.15, 0.05), 0.8),
+        ((0.35, -0.18, 0.20), -1.2),
+        ((0.25, 0.10, 0.03), 1.5),
+    ],
+)
+def test_ik_motion_reaches_top_down_pose_within_5mm(
+    robot: CR3Robot, position: tuple[float, float, float], yaw: float
+) -> None:
+    solution = robot.move_to(position, robot.nearest_yaw(yaw, robot.tcp_pose().yaw))
+    assert solution.ok(robot.config), solution
+    reached = robot.tcp_pose()  # after executing the motion in physics, not the model
+    assert np.linalg.norm(reached.position - np.array(position)) < 0.005
+    down = top_down_rotation(yaw)[:, 2]
+    assert math.degrees(math.acos(float(reached.rotation[:, 2] @ down))) < 2.0
+    axis_error = abs(math.sin(reached.yaw - yaw))  # parallel grasp: yaw and yaw + pi agree
+    assert axis_error < math.sin(math.radians(2.0))
+
+
+def test_unreachable_pose_is_reported_not_executed(robot: CR3Robot) -> None:
+    before = robot.joint_positions()
+    solution = robot.move_to((1.2, 0.0, 0.1), 0.0)
+    assert not solution.ok(robot.config)
+    assert solution.position_error > 0.1
+    assert np.allclose(robot.joint_positions(), before, atol=1e-3)
+
+
+def test_gripper_opens_and_closes_on_nothing(robot: CR3Robot) -> None:
+    robot.gripper.open()
+    assert robot.gripper.width() == pytest.approx(0.08, abs=0.002)
+    robot.gripper.close()
+    assert robot.gripper.width() < 0.002
+    assert robot.gripper.check_grasp() is None
+    robot.gripper.open()
