@@ -1,0 +1,83 @@
+"""The bundles that ship in artifacts/kb rebuild byte for byte from the committed records.
+
+This is what a fresh clone can check: replay the recorded answers (no network), embed from a
+cold embedding cache, and compare every bundle file with the committed one. It also pins the
+coverage promise: every vocabulary verb and object is in the default bundle, and gaps are
+listed in report.json rather than hidden.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from craft_e.compiler.build import BuildConfig, KnowledgeMode, build
+from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
+from craft_e.schemas.v1.bundle import BUNDLE_FILES, MANIFEST_FILE
+
+SHIPPED: dict[str, KnowledgeMode] = {
+    "craft-e-default": "llm",
+    "direct-llm": "direct",
+    "conceptnet": "conceptnet",
+}
+
+
+@pytest.fixture(scope="module")
+def cold_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The committed records only: no embedding cache, so every text is embedded afresh."""
+    root = tmp_path_factory.mktemp("cache")
+    shutil.copytree(CACHE_DIR / "llm", root / "llm")
+    if (CACHE_DIR / "conceptnet").is_dir():
+        shutil.copytree(CACHE_DIR / "conceptnet", root / "conceptnet")
+    return root
+
+
+@pytest.mark.parametrize("name", list(SHIPPED))
+def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp_path: Path) -> None:
+    mode = SHIPPED[name]
+    config = BuildConfig(
+        verbs_file=VOCAB_DIR / "union_verbs.txt",
+        objects_file=VOCAB_DIR / "union_objects.txt",
+        out=tmp_path / name,
+        name=name,
+        mode=mode,
+        cache_root=cold_cache,
+        tau=0.0 if mode == "direct" else 0.5,
+    )
+    result = build(config)
+    committed = KB_DIR / name
+    assert result.manifest.content_sha256 == json.loads((committed / MANIFEST_FILE).read_text())[
+        "content_sha256"
+    ], f"{name}: rebuild differs from the committed bundle (run scripts/build_kbs and commit)"
+    for file in (*BUNDLE_FILES, MANIFEST_FILE):
+        assert (tmp_path / name / file).read_bytes() == (committed / file).read_bytes(), file
+
+
+def test_default_bundle_covers_every_vocabulary_and_reports_gaps() -> None:
+    manifest = json.loads((KB_DIR / "craft-e-default" / MANIFEST_FILE).read_text())
+    report = json.loads((KB_DIR / "craft-e-default" / "report.json").read_text())
+    for vocab in VOCAB_DIR.glob("*_objects.txt"):
+        names = [n for n in vocab.read_text().splitlines() if n]
+        assert set(names) <= set(manifest["objects"]), vocab.name
+    for vocab in VOCAB_DIR.glob("*_verbs.txt"):
+        names = [n for n in vocab.read_text().splitlines() if n]
+        assert set(names) <= set(manifest["verbs"]), vocab.name
+    coverage = report["coverage"]
+    assert set(coverage) == {
+        "verbs_with_fewer_than_k_properties",
+        "objects_without_properties",
+        "objects_unreachable_from_any_verb",
+        "verbs_reaching_no_object",
+    }
+    # Every curated verb answered with k = 10 properties, every object has some property.
+    assert coverage["verbs_with_fewer_than_k_properties"] == {}
+    assert coverage["objects_without_properties"] == []
+
+
+def test_conceptnet_bundle_reports_thin_coverage_instead_of_padding() -> None:
+    report = json.loads((KB_DIR / "conceptnet" / "report.json").read_text())
+    # OMCS reaches few verbs offline; the report must say so, not fill in.
+    assert len(report["coverage"]["verbs_reaching_no_object"]) > 40
