@@ -32,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from safetensors.numpy import save as save_safetensors
+
 from craft_e.runtime.bundle import load_bundle
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
 from craft_e.runtime.energies import affordance_energy_matrix
@@ -47,7 +49,6 @@ from craft_e.schemas.v1.bundle import (
     TextEncoderInfo,
     sealed,
 )
-from safetensors.numpy import save as save_safetensors
 
 
 def _unit(rng: np.random.Generator, n: int) -> np.ndarray[Any, np.dtype[np.float32]]:

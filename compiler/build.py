@@ -21,6 +21,9 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict
+from safetensors.numpy import save as save_safetensors
+
 from craft_e import __version__
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.draft import KnowledgeDraft
@@ -42,8 +45,6 @@ from craft_e.schemas.v1.bundle import (
     TextEncoderInfo,
     sealed,
 )
-from pydantic import BaseModel, ConfigDict
-from safetensors.numpy import save as save_safetensors
 
 KnowledgeMode = Literal["llm", "conceptnet", "direct"]
 VERB_TEMPLATE = "something to {verb}"

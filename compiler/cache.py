@@ -15,8 +15,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from craft_e.schemas.v1.records import Record
 from pydantic import ValidationError
+
+from craft_e.schemas.v1.records import Record
 
 
 class CacheError(RuntimeError):

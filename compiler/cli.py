@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Annotated, NoReturn
 
 import typer
-from craft_e.paths import CACHE_DIR, VOCAB_DIR
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -24,6 +23,8 @@ from rich.progress import (
     TextColumn,
     TimeElapsedColumn,
 )
+
+from craft_e.paths import CACHE_DIR, VOCAB_DIR
 
 app = typer.Typer(
     help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
@@ -107,11 +108,12 @@ def build(
     quiet: Annotated[bool, typer.Option(help="No progress bars.")] = False,
 ) -> None:
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
+    from pydantic import ValidationError
+
     from craft_e.compiler.build import BuildConfig
     from craft_e.compiler.build import build as run_build
     from craft_e.compiler.sources.llm import SourceError
     from craft_e.compiler.vocab import VocabError
-    from pydantic import ValidationError
 
     if provider not in PROVIDERS:
         fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")

@@ -13,12 +13,13 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from craft_e.compiler.llm_knowledge import direct_call, plan_object_calls, verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
 from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from craft_e.schemas.v1.records import Record
-from pydantic import ValidationError
 
 
 class CurationError(ValueError):

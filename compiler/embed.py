@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+
 from craft_e.compiler.cache import atomic_write_bytes
 from craft_e.runtime.encoders.text import load_text_encoder
 

@@ -13,6 +13,7 @@ from typing import Any
 import networkx as nx
 import numpy as np
 import numpy.typing as npt
+
 from craft_e.compiler.draft import KnowledgeDraft
 from craft_e.schemas.v1.bundle import Coverage
 

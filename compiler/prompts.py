@@ -14,10 +14,11 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel
+
 from craft_e.paths import PROMPTS_DIR
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from craft_e.schemas.v1.records import Message
-from pydantic import BaseModel
 
 PAYLOADS: dict[str, type[BaseModel]] = {
     "verb_properties": VerbProperties,

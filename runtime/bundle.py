@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from pydantic import ValidationError
+
 from craft_e.schemas.v1.bundle import (
     BUNDLE_FILES,
     MANIFEST_FILE,
@@ -25,7 +27,6 @@ from craft_e.schemas.v1.bundle import (
     Manifest,
     content_hash,
 )
-from pydantic import ValidationError
 
 FloatArray = npt.NDArray[np.float32]
 SUPPORTED_SCHEMA_VERSIONS = (1,)
@@ -168,8 +169,9 @@ def load_bundle(
     silently produce wrong cosines. A file is a packed bundle: it is used only if signed by one
     of ``trusted_keys`` (see ``runtime/package.py``), verified and unpacked privately first.
     """
-    from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
     from safetensors.numpy import load as load_safetensors
+
+    from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
 
     folder = Path(path)
     if folder.is_file():

@@ -128,6 +128,7 @@ def _grasps_for(backend: str, rgb: Any, depth: Any, box: tuple[float, float, flo
     falls back to the whole box.
     """
     import numpy as np
+
     from craft_e.runtime.grasp import estimate_object_mask, predict_grasps
 
     box_mask = np.zeros(depth.shape[:2], dtype=bool)
@@ -165,6 +166,7 @@ def ground(
 ) -> None:
     """Rank ROIs of an image for a verb and explain the choice (no network access)."""
     import numpy as np
+
     from craft_e.runtime.bundle import BundleError, load_bundle
     from craft_e.runtime.encoders import REGISTRY, EncoderError
     from craft_e.runtime.encoders import load as load_encoder

@@ -27,6 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+
 from craft_e.runtime.bundle import Bundle, PathStep
 from craft_e.runtime.energies import (
     FORBIDDEN_ENERGY,

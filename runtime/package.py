@@ -51,6 +51,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal
 
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
 from craft_e.runtime.bundle import BundleError, read_manifest, verify_files
 from craft_e.schemas.v1.bundle import (
     BUILD_INFO_FILE,
@@ -60,7 +62,6 @@ from craft_e.schemas.v1.bundle import (
     content_hash,
 )
 from craft_e.schemas.v1.records import canonical_json
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 if TYPE_CHECKING:
     from craft_e.runtime.bundle import Bundle

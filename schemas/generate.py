@@ -10,10 +10,11 @@ import json
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel
+
 from craft_e.schemas.v1.bundle import BuildInfo, BundleReport, Manifest
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from craft_e.schemas.v1.records import Record
-from pydantic import BaseModel
 
 SCHEMA_DIR = Path(__file__).resolve().parent / "v1" / "json"
 MODELS: dict[str, type[BaseModel]] = {

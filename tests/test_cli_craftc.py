@@ -13,13 +13,14 @@ from pathlib import Path
 
 import pytest
 from conftest import KB_NAME, KB_SMALL, MODEL, PROVIDER, FixtureKB, bundle_bytes, fixture_source
+from typer.testing import CliRunner, Result
+
 from craft_e.compiler.cli import app
 from craft_e.compiler.diff import diff_bundles
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE
 from craft_e.runtime.bundle import load_bundle
 from craft_e.schemas.generate import SCHEMA_DIR, generate_all
-from typer.testing import CliRunner, Result
 
 runner = CliRunner()
 

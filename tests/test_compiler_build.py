@@ -26,6 +26,7 @@ from conftest import (
     fixture_source,
     record_fixture,
 )
+
 from craft_e.compiler.build import VERB_TEMPLATE, build
 from craft_e.compiler.embed import EmbeddingCache
 from craft_e.compiler.llm_knowledge import verb_call

@@ -13,6 +13,7 @@ import threading
 from pathlib import Path
 
 import pytest
+
 from craft_e.compiler.cache import CacheError, RecordCache, atomic_write_bytes, record_bytes
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, MissingRecordError

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import FIXTURES, FixtureKB, build_config
+
 from craft_e.compiler.build import build
 from craft_e.compiler.diff import (
     VALID_RULES,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from conftest import FIXTURES
+
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.llm_knowledge import direct_call, object_call, verb_call
 from craft_e.compiler.prompts import PromptError, format_list, load_prompt, property_set_id

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from conftest import FIXTURES
+
 from craft_e.compiler.vocab import VocabError, read_vocabulary
 
 VOCAB = FIXTURES / "vocab"

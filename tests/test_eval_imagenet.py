@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from runtime_fixtures import DEV_LABELS, RuntimeKBs, conse_fixture, runtime_kbs_fixture  # noqa: F401
+
 from craft_e.runtime.evaluation.common import ndcg, reciprocal_rank, topk_accuracy
 from craft_e.runtime.evaluation.imagenet import (
     LabelsError,
@@ -18,7 +20,6 @@ from craft_e.runtime.evaluation.imagenet import (
     load_labels,
     make_episodes,
 )
-from runtime_fixtures import DEV_LABELS, RuntimeKBs, conse_fixture, runtime_kbs_fixture  # noqa: F401
 
 
 def pool(kbs: RuntimeKBs) -> list[str]:

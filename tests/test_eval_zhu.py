@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
+
 from craft_e.paths import KB_DIR, shared_dir
 from craft_e.runtime.cli import app
 from craft_e.runtime.evaluation.zhu import (
@@ -15,7 +17,6 @@ from craft_e.runtime.evaluation.zhu import (
     chance_ap,
     read_zhu_matrix,
 )
-from typer.testing import CliRunner
 
 MATRIX = shared_dir() / "data/affordance_dev/zhu2014_affordance_matrix.csv"
 

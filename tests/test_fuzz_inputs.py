@@ -33,6 +33,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
 from craft_e.compiler.cache import CacheError, RecordCache
 from craft_e.compiler.cli import app as craftc
 from craft_e.compiler.curate import CurationError, record_answers
@@ -43,9 +47,6 @@ from craft_e.runtime.bundle import BundleError, load_bundle, read_manifest, veri
 from craft_e.runtime.package import PackageError, unpack_package, verify_package
 from craft_e.schemas.names import normalize_name, normalize_verb
 from craft_e.schemas.v1.bundle import Manifest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-from typer.testing import CliRunner
 
 VERBS_TXT = "cut\nscoop\n"
 OBJECTS_TXT = "knife\nspoon\nbowl\n"

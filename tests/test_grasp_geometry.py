@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from craft_e.runtime.grasp.geometry import (
     CameraIntrinsics,
     Grasp2D,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from craft_e.paths import shared_dir
 from craft_e.runtime.grasp.geometry import Grasp2D
 from craft_e.runtime.grasp.metrics import (

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
 from craft_e.paths import shared_dir
 from craft_e.runtime.grasp import registry
 from craft_e.runtime.grasp.base import GraspMaps

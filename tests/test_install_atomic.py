@@ -21,6 +21,8 @@ from typing import Any
 
 import pytest
 import typer
+from typer.testing import CliRunner
+
 from craft_e.compiler.pack import keygen, pack_bundle
 from craft_e.runtime import install as install_mod
 from craft_e.runtime import package as package_mod
@@ -35,7 +37,6 @@ from craft_e.runtime.install import (
     rollback,
 )
 from craft_e.runtime.package import DestinationError, PackageError
-from typer.testing import CliRunner
 
 # make_bundle lives beside the package tests; resolve it whether tests/ is a package or not
 make_bundle = importlib.import_module(

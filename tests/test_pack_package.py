@@ -21,6 +21,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 import typer
+from safetensors.numpy import save as save_safetensors
+from typer.testing import CliRunner
+
 from craft_e.compiler.cli_pack import register as register_pack
 from craft_e.compiler.emit import file_digest, write_bundle
 from craft_e.compiler.pack import (
@@ -57,8 +60,6 @@ from craft_e.schemas.v1.bundle import (
     TextEncoderInfo,
     sealed,
 )
-from safetensors.numpy import save as save_safetensors
-from typer.testing import CliRunner
 
 VERBS = ["cut", "scoop"]
 OBJECTS = ["knife", "spoon", "bowl"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from craft_e.runtime.grasp.geometry import CameraIntrinsics
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.perception.plane import fit_plane

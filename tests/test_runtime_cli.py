@@ -6,9 +6,10 @@ import json
 from pathlib import Path
 
 import pytest
-from craft_e.runtime.cli import app, eval_app, parse_box, sim_app
 from runtime_fixtures import DEV_LABELS, RUNTIME_KB, RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
 from typer.testing import CliRunner
+
+from craft_e.runtime.cli import app, eval_app, parse_box, sim_app
 
 runner = CliRunner()
 

@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from runtime_fixtures import conse_fixture, shared_image  # noqa: F401
+
 from craft_e.runtime import encoders
 from craft_e.runtime.encoders.clip import (
     ClipConfig,
@@ -23,7 +25,6 @@ from craft_e.runtime.encoders.conse import conse_embed, imagenet_class_names
 from craft_e.runtime.encoders.efficientnet import EFFICIENTNET_LITE0_SHA256
 from craft_e.runtime.encoders.image import crop_box, load_image
 from craft_e.runtime.encoders.text import EncoderError
-from runtime_fixtures import conse_fixture, shared_image  # noqa: F401
 
 
 @pytest.mark.parametrize(("name", "expected"), [("hatchet", "hatchet"), ("teapot", "teapot"), ("violin", "violin")])

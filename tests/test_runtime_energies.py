@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from runtime_fixtures import TAU, RuntimeKBs, runtime_kbs_fixture  # noqa: F401
+
 from craft_e.runtime.bundle import load_bundle
 from craft_e.runtime.energies import (
     affordance_energy_matrix,
@@ -15,7 +17,6 @@ from craft_e.runtime.energies import (
     weight_matrices_from_graph,
 )
 from craft_e.runtime.grounding import Grounder
-from runtime_fixtures import TAU, RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 
 FORBIDDEN = ("cut", "umbrella")
 

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import pytest
+from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
+
 from craft_e.runtime.bundle import load_bundle
 from craft_e.runtime.explain import UnknownNameError, explain_pair
-from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 
 
 def test_explain_pair_renders_paths_with_weights_and_records(runtime_kbs: RuntimeKBs) -> None:
@@ -40,8 +41,9 @@ def test_unknown_names_list_close_matches(runtime_kbs: RuntimeKBs, verb: str, ob
 
 
 def test_craftc_explain_uses_it(runtime_kbs: RuntimeKBs) -> None:
-    from craft_e.compiler.cli import app
     from typer.testing import CliRunner
+
+    from craft_e.compiler.cli import app
 
     result = CliRunner().invoke(app, ["explain", str(runtime_kbs.kb), "hit", "hammer"])
     assert result.exit_code == 0, result.output

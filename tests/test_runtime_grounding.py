@@ -9,9 +9,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
+
 from craft_e.runtime.bundle import BundleError, load_bundle
 from craft_e.runtime.grounding import ROI, Grounder, UnknownVerbError
-from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
 
 
 def obj_emb(kbs: RuntimeKBs, name: str) -> np.ndarray[Any, np.dtype[np.float32]]:

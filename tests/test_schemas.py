@@ -14,13 +14,14 @@ from typing import Any
 import jsonschema  # type: ignore[import-untyped]
 import pytest
 from conftest import FIXTURES, FixtureKB
+from pydantic import ValidationError
+
 from craft_e.runtime.bundle import BundleError, load_bundle, read_manifest
 from craft_e.schemas.generate import SCHEMA_DIR, generate_all, render
 from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
 from craft_e.schemas.v1.bundle import Manifest
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbProperties
 from craft_e.schemas.v1.records import Record
-from pydantic import ValidationError
 
 NORMALIZERS = {"object": normalize_name, "verb": normalize_verb, "property": normalize_property}
 

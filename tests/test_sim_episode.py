@@ -6,6 +6,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+
 from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import Outcome, PickResult, execute_pick

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 import numpy as np
 import pybullet as p
 import pytest
+
 from craft_e.runtime.sim.assets import shared_path
 from craft_e.runtime.sim.robot import CR3Robot, top_down_rotation
 from craft_e.runtime.sim.robot_urdf import (

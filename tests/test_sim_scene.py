@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pybullet as p
 import pytest
+
 from craft_e.runtime.sim.assets import object_asset, object_catalog
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.placement import (

@@ -14,6 +14,8 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+from servers import ConceptNetPages, FakeServer, Reply
+
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.draft import KnowledgeDraft
 from craft_e.compiler.sources.conceptnet import (
@@ -36,7 +38,6 @@ from craft_e.compiler.sources.conceptnet import (
 )
 from craft_e.compiler.sources.llm import SourceError
 from craft_e.paths import shared_dir
-from servers import ConceptNetPages, FakeServer, Reply
 
 DATA = shared_dir() / "data" / "conceptnet"
 SPOON_PAGES = DATA / "api_samples" / "c_en_spoon_pages.json"

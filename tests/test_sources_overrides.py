@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from craft_e.compiler.draft import KnowledgeDraft, Link
 from craft_e.compiler.sources.overrides import STAGE, OverridesError, apply_overrides
 

@@ -16,6 +16,8 @@ from email.utils import format_datetime
 from pathlib import Path
 
 import pytest
+from servers import CutBody, FakeServer, Received, Reply, gemini_reply, openai_reply
+
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.http_retry import MAX_RETRY_AFTER_S, parse_retry_after
@@ -37,7 +39,6 @@ from craft_e.compiler.sources.transports import (
     make_transport,
 )
 from craft_e.schemas.v1.records import Record
-from servers import CutBody, FakeServer, Received, Reply, gemini_reply, openai_reply
 
 SECRET = "sk-test-SECRET-0123456789"
 VALID = json.dumps({"verb": "cut", "properties": [{"name": "sharp edge", "weight": 0.9},

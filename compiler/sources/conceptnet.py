@@ -27,6 +27,7 @@ from typing import Any, TextIO
 from urllib.parse import parse_qsl, urlsplit
 
 import httpx
+
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.draft import KnowledgeDraft, Link
 from craft_e.compiler.sources.http_retry import make_client, response_json, send, with_retries

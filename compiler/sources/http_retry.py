@@ -18,6 +18,7 @@ from email.utils import parsedate_to_datetime
 from typing import Any, TypeVar
 
 import httpx
+
 from craft_e.compiler.sources.llm import FatalTransportError, TransportError
 
 #: Seconds; a read timeout is generous because a model may think for a while before answering.

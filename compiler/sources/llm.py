@@ -15,10 +15,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from pydantic import ValidationError
+
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.prompts import PromptTemplate
 from craft_e.schemas.v1.records import Record, RecordRequest
-from pydantic import ValidationError
 
 LLM_SOURCE = "llm"
 

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import httpx
+
 from craft_e.compiler.sources.http_retry import make_client, response_json, send
 from craft_e.compiler.sources.llm import FatalTransportError, Transport, TransportError
 from craft_e.schemas.v1.records import RecordRequest

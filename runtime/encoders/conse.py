@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
 from craft_e.paths import CACHE_DIR
 from craft_e.runtime.encoders.image import FloatArray, UInt8Image, resize_center_crop
 from craft_e.runtime.encoders.text import (
@@ -133,6 +134,7 @@ class ConSEImageEncoder:
         threads: int | None = None,
     ) -> None:
         import torch
+
         from craft_e.runtime.encoders.efficientnet import (
             EFFICIENTNET_LITE0_SHA256,
             load_efficientnet_lite0,

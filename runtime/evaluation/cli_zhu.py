@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+
 from craft_e.paths import KB_DIR, shared_dir
 
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "conceptnet", KB_DIR / "direct-llm"]

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
 from craft_e.paths import KB_DIR, VOCAB_DIR, shared_dir
 from craft_e.runtime.energies import EnergyForm, object_hypotheses
 from craft_e.runtime.evaluation.common import (

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+
 from craft_e.runtime.bundle import Bundle
 from craft_e.runtime.energies import EnergyForm
 from craft_e.runtime.grounding import affordance_energy_in_form

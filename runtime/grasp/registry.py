@@ -13,8 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from craft_e.paths import shared_dir
 from safetensors.torch import load_file
+
+from craft_e.paths import shared_dir
 
 from .base import GraspNet
 from .ggcnn import GGCNN, GGCNN2

@@ -14,10 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
+
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.perception.plane import Plane, PlaneFitConfig, fit_plane
 from craft_e.runtime.perception.roi import ROI, BoolMask, roi_from_mask
-from scipy import ndimage
 
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+
 from craft_e.runtime.grasp.geometry import CameraIntrinsics
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.transforms import look_at

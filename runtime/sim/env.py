@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from types import TracebackType
 
 import pybullet as p
+
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.camera import Camera
 from craft_e.runtime.sim.gripper import GripperConfig

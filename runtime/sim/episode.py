@@ -16,6 +16,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+
 from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.robot import CR3Robot, IKSolution
@@ -126,6 +127,16 @@ def _plan(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -
     if not _all_ok(robot, lower):
         return f"release pose ({drop_x:.3f}, {drop_y:.3f}, {release_z:.3f}) unreachable"
     return _Plan(pre, descent, lift, transport, lower, grasp_z)
+
+
+def plan_pick(env: SimEnv, grasp: TopDownGrasp, config: PickConfig | None = None) -> str | None:
+    """Check a pick without moving: None if every waypoint is reachable, else which is not.
+
+    The same plan ``execute_pick`` makes, so a robot can skip grasps it could not execute (IK is
+    information a real controller has before it moves).
+    """
+    plan = _plan(env.robot, env.scene, grasp, config or PickConfig())
+    return plan if isinstance(plan, str) else None
 
 
 def _body_z(scene: Scene, body: int) -> float:

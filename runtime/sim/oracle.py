@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+
 from craft_e.runtime.grasp.geometry import TopDownGrasp, wrap_half_pi
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.perception.roi import ROI, roi_from_mask

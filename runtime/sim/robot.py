@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+
 from craft_e.runtime.sim.gripper import GripperConfig, ParallelGripper
 from craft_e.runtime.sim.kinematics import SerialChain, load_chain
 from craft_e.runtime.sim.robot_urdf import (

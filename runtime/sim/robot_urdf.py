@@ -18,6 +18,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pybullet_data
+
 from craft_e.runtime.sim.assets import shared_path
 
 CR3_DIR = "assets/robots/dobot_cr3"

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.assets import object_asset
 from craft_e.runtime.sim.camera import Camera, render
