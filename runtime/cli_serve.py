@@ -1,0 +1,75 @@
+"""``craft serve``: run the grounding HTTP API (``runtime/serve.py``) with uvicorn, one process.
+
+The bundle is loaded and verified, and the grounders built, *before* the port is bound: a
+refused bundle exits 2 with the loader's message and never answers a request. Binds 127.0.0.1
+by default: the API has no authentication, so exposing it is an explicit choice (``--host
+0.0.0.0``) for a trusted robot network.
+
+Exit codes: 0 clean shutdown; 2 bad input (bundle refused, encoder mismatch, bad option).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated, NoReturn
+
+import typer
+from rich.console import Console
+
+_err = Console(stderr=True)
+EXIT_BAD_INPUT = 2
+
+
+def _fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
+    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def serve_cmd(
+    kb: Annotated[Path, typer.Option(help="Bundle folder (or signed .craft file with --trusted-key).")],
+    host: Annotated[str, typer.Option(help="Interface to bind (no auth: keep it local or on a trusted network).")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port (0: any free port).")] = 8080,
+    image_encoder: Annotated[str, typer.Option(help="conse (enables POST /ground_image) | none.")] = "conse",
+    threads: Annotated[int, typer.Option(min=1, help="Torch threads of the image encoder.")] = 1,
+    max_rois: Annotated[int, typer.Option(min=1, help="Most ROIs accepted in one request (422 above).")] = 64,
+    max_body_bytes: Annotated[int, typer.Option(min=1024, help="Largest /ground body in bytes (413 above).")] = 2 * 1024 * 1024,
+    temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated 0.06; see docs/robustness.md).")] = None,
+    open_vocab: Annotated[bool, typer.Option(help="Ground verbs the KB lacks via similar KB verbs (else 404).")] = False,
+    trusted_key: Annotated[list[Path] | None, typer.Option("--trusted-key", help="Signer key for a .craft package.")] = None,
+    log_level: Annotated[str, typer.Option(help="uvicorn log level: critical | error | warning | info | debug.")] = "info",
+    access_log: Annotated[bool, typer.Option(help="Log every request (costs throughput).")] = False,
+) -> None:
+    """Serve POST /ground, POST /ground_image, GET /healthz and GET /verbs over HTTP."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see runtime/cli.py: tiny matmuls, busy cores
+    import uvicorn
+
+    from craft_e.runtime.bundle import BundleError
+    from craft_e.runtime.encoders import EncoderError
+    from craft_e.runtime.grounding import DEFAULT_TEMPERATURE
+    from craft_e.runtime.serve import ServeError, create_app, load_image_encoder
+
+    if image_encoder not in ("conse", "none"):
+        _fail(f"--image-encoder {image_encoder!r}: use conse or none")
+    if temperature is not None and temperature <= 0:
+        _fail(f"--temperature {temperature}: must be > 0")
+    if log_level not in ("critical", "error", "warning", "info", "debug"):
+        _fail(f"--log-level {log_level!r}: use critical, error, warning, info or debug")
+    try:
+        encoder = load_image_encoder("conse" if image_encoder == "conse" else "none", threads=threads)
+        app = create_app(kb, image_encoder=encoder, max_rois=max_rois, open_vocab=open_vocab,
+                         trusted_keys=[str(k) for k in trusted_key] if trusted_key else None,
+                         max_body_bytes=max_body_bytes,
+                         temperature=DEFAULT_TEMPERATURE if temperature is None else temperature)
+    except (BundleError, ServeError, EncoderError) as exc:
+        _fail(str(exc))
+    health = app.state.service.health()
+    _err.print(f"serving {health['kb']}@{health['version']} (content sha256 {health['content_sha256'][:16]}..., "
+               f"{health['verbs']} verbs, dim {health['dim']}, image encoder {health['image_encoder'] or 'none'}) "
+               f"on http://{host}:{port}", highlight=False, soft_wrap=True)
+    uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=access_log, workers=1)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``craft serve`` to the top-level ``craft`` app."""
+    app.command("serve")(serve_cmd)
