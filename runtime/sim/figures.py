@@ -1,0 +1,160 @@
+"""Pictures of a testbed episode: the paper's qualitative figure and an animated GIF.
+
+The figure has the paper's four panels — the input image, the grasp predictions, the ROIs (green)
+and the final grounding (blue) with its explanation path — so a person can see at which stage an
+episode went right or wrong. The GIF is rendered by a second, low-resolution camera that sees the
+arm, the table and the drop zone; frames are taken every N simulation steps (a step-count clock,
+so the same episode gives the same GIF). Matplotlib uses the Agg backend (no display needed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D
+from craft_e.runtime.sim.camera import Camera, render
+
+if TYPE_CHECKING:
+    from craft_e.runtime.sim.pipeline import EpisodeResult
+
+UInt8Image = npt.NDArray[np.uint8]
+
+
+def overview_camera(width: int = 320, height: int = 240) -> Camera:
+    """An oblique view of the arm, the workspace and the drop zone (for the GIF only)."""
+    return Camera(intrinsics=CameraIntrinsics.realsense_d435(width, height),
+                  eye=(1.05, 0.55, 0.75), target=(0.22, -0.12, 0.05), up=(0.0, 0.0, 1.0))
+
+
+@dataclass
+class FrameRecorder:
+    """A ``SimEnv.step_hook`` that renders a frame every ``every`` steps while ``active``."""
+
+    client: int
+    every: int = 24
+    camera: Camera = field(default_factory=overview_camera)
+    active: bool = False
+    frames: list[UInt8Image] = field(default_factory=list)
+
+    def snapshot(self) -> None:
+        self.frames.append(render(self.client, self.camera).rgb)
+
+    def __call__(self, step: int) -> None:
+        if self.active and step % self.every == 0:
+            self.snapshot()
+
+    def save(self, path: Path, fps: float = 12.0) -> Path:
+        """Write the frames as an endlessly looping GIF (imageio, Pillow plugin)."""
+        import imageio.v3 as iio
+
+        if not self.frames:
+            raise ValueError("no frames were recorded")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        iio.imwrite(path, np.stack(self.frames), extension=".gif", duration=1000.0 / fps, loop=0)
+        return path
+
+
+def _rect_polygon(rect: Grasp2D) -> npt.NDArray[np.float64]:
+    return rect.corners()
+
+
+def explanation_lines(result: EpisodeResult, method: str, max_paths: int = 4) -> list[str]:
+    """The chosen ROI's energies and its strongest verb -> property -> object paths."""
+    outcome = result.outcomes[method]
+    chosen = outcome.grounding.chosen
+    if chosen is None:
+        return ["no ROI could be chosen (none has a usable grasp)"]
+    top = chosen.hypotheses[0] if chosen.hypotheses else None
+    lines = [f"chosen roi{chosen.index}: most likely '{top.name}' (p={top.probability:.2f})" if top else
+             f"chosen roi{chosen.index}",
+             f"E={chosen.total:.2f}  E_grasp={chosen.e_grasp:.2f}  E_aff={chosen.e_aff:.2f}  "
+             f"E_align={chosen.e_align:.2f}"]
+    for path in sorted(chosen.paths, key=lambda q: -(q.w_vp + q.w_po))[:max_paths]:
+        records = ",".join(k[:8] for k in path.provenance)
+        lines.append(f"{path.verb} -({path.w_vp:.2f})-> {path.prop} -({path.w_po:.2f})-> {path.obj}  [{records}]")
+    if not chosen.paths:
+        lines.append("no verb -> property -> object path in the KB")
+    verdict = "SUCCESS" if outcome.success else f"failed: {outcome.failure.value}"
+    lines.append(f"outcome: {verdict}")
+    return lines
+
+
+def plot_episode(result: EpisodeResult, method: str, out: Path, *, title: str | None = None) -> Path:
+    """The four-panel figure of one method's episode, written to ``out`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import patches
+
+    per = result.perception
+    rgb = per.obs.rgb
+    outcome = result.outcomes[method]
+    fig = plt.figure(figsize=(20, 6.8))
+    grid = fig.add_gridspec(2, 4, height_ratios=[4.0, 1.3])
+    axes = [fig.add_subplot(grid[0, i]) for i in range(4)]
+    for ax in axes:
+        ax.imshow(rgb)
+        ax.set_axis_off()
+    axes[0].set_title("input", fontsize=11)
+
+    cmap = matplotlib.colormaps["viridis"]
+    for roi in per.rois:
+        usable = {id(c) for c in roi.usable}
+        for cand in roi.candidates:
+            poly = _rect_polygon(cand.rect)
+            axes[1].add_patch(patches.Polygon(poly, closed=True, fill=False, edgecolor=cmap(cand.quality),
+                                              linewidth=2.5 if id(cand) in usable else 1.0))
+    axes[1].set_title(f"grasp predictions ({result.spec.verb}; thick = usable)", fontsize=11)
+
+    for i, roi in enumerate(per.rois):
+        x, y, w, h = roi.roi.box_xywh
+        axes[2].add_patch(patches.Rectangle((x, y), w, h, fill=False, edgecolor="lime", linewidth=2))
+        axes[2].text(x + 2, y - 3, f"roi{i}", color="black", fontsize=8, va="bottom",
+                     bbox={"facecolor": "lime", "alpha": 0.8, "pad": 1, "edgecolor": "none"})
+    axes[2].set_title(f"ROIs ({len(per.rois)})", fontsize=11)
+
+    ax = axes[3]
+    chosen = outcome.grounding.chosen
+    if per.target_box is not None:
+        tx, ty, tw, th = per.target_box
+        ax.add_patch(patches.Rectangle((tx, ty), tw, th, fill=False, edgecolor="white", linestyle="--",
+                                       linewidth=1.2))
+    if chosen is not None:
+        cx, cy, cw, ch = chosen.roi.box_xywh
+        ax.add_patch(patches.Rectangle((cx, cy), cw, ch, fill=False, edgecolor="royalblue", linewidth=3))
+        if outcome.grasp is not None:
+            ax.add_patch(patches.Polygon(_rect_polygon(outcome.grasp.rect), closed=True, fill=False,
+                                         edgecolor="cyan", linewidth=2.5))
+    ax.set_title(f"grounding: '{result.spec.verb}' ({method}; dashed = target)", fontsize=11)
+    text = fig.add_subplot(grid[1, :])
+    text.set_axis_off()
+    text.text(0.0, 1.0, "\n".join(explanation_lines(result, method)), transform=text.transAxes,
+              fontsize=9, va="top", ha="left", family="monospace")
+    fig.suptitle(title or f"{result.spec.verb}: target {result.spec.target} among "
+                 f"{', '.join(result.spec.distractors)}", fontsize=12)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def describe(result: EpisodeResult, method: str) -> str:
+    """The terminal explanation: the grounding's ranking with energies and paths, the outcome."""
+    outcome = result.outcomes[method]
+    lines = [outcome.grounding.render()]
+    per = result.perception
+    lines.append(f"3D (viable grasp on the target): {per.three_d}"
+                 + (f" ({per.three_d_detail})" if per.three_d_detail else ""))
+    lines.append(f"Detect (chosen ROI is the target, IoU {outcome.chosen_iou:.2f}): {outcome.detect}")
+    pick = outcome.pick
+    lines.append(f"outcome: {outcome.failure.value}"
+                 + (f" ({pick.detail})" if pick is not None and pick.detail else "")
+                 + (f", {pick.steps} simulation steps" if pick is not None else ""))
+    return "\n".join(lines)

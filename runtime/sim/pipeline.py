@@ -1,0 +1,594 @@
+"""One testbed episode end to end: capture → ROIs → grasps → ground → execute → outcome.
+
+The scene is perceived once and every grounding method is scored on that same perception; only
+grounding and execution differ between methods. Execution always restarts from one saved physics
+state (``p.saveState`` right after the scene settled, the arm teleported home), and a pick is
+simulated once per distinct chosen ROI: methods that choose the same region get the same result,
+which the determinism of the simulator would give anyway.
+
+Stages and the robot-side choices made in them (all use only what a real robot has: the image,
+the depth, the predicted mask, its own kinematics):
+
+1. **ROIs**: ``predicted`` (class-agnostic RGB-D segmentation) or ``oracle`` (the simulator's
+   segmentation buffer, one ROI per visible object).
+2. **Grasps** per ROI: a grasp network (``grconvnet``, ``ggcnn``, ``ggcnn2``) or the analytic
+   ``antipodal`` sampler restricted to the ROI mask, or the ``oracle`` grasp of the body the ROI
+   covers most. Each rectangle becomes a top-down pose through the depth and the intrinsics.
+3. **Grasp checks** (on by default; ``PipelineConfig.fit_filter`` / ``ik_filter``): best-scoring
+   first, keep the first grasp under which the object fits the open fingers (``finger_check``:
+   the section of the ROI's depth surface above the finger tips, across a pad-wide strip) and
+   whose whole pick (pre-grasp, descent, lift, transport, release) has IK solutions. Its score is
+   the ROI's grasp confidence, so ``E_grasp = -log(score)`` is the energy of a grasp the robot
+   can execute; an ROI with no such grasp is excluded from grounding, as the paper prescribes.
+4. **Embeddings** of the ROI crops (the ConSE image encoder), then ``Grounder.ground(verb, rois)``
+   per method over the scene vocabulary (the plain names of the 74 sim objects).
+5. **Execution** of the chosen ROI's grasp with ``execute_pick``, judged from physics.
+
+Metrics, per episode:
+
+* **3D**: the grasp module returned a *viable* grasp on the target: the predicted ROI matching the
+  target (box IoU >= 0.5 with the target's ground-truth box; best such ROI) has a raw grasp
+  candidate whose centre pixel lies on the target's ground-truth mask, that passes
+  ``finger_check`` on the target's ground-truth surface (its true mask, not the ROI's), and whose
+  pick is IK-feasible. Method-independent: perception is shared.
+* **Detect** (per method): the chosen ROI's box has IoU >= 0.5 with the target's ground-truth box.
+* **Grasp Rate** (per method): Detect and the executed pick ends in ``success`` (target lifted,
+  carried and at rest in the drop zone). A pick is not executed when Detect fails: the paper
+  counts a wrong region as a failure whatever the arm would do next.
+
+Failure classes (root cause first): ``no_target_roi`` (perception produced no region for the
+target), ``no_grasp`` (the target's region had no usable grasp, so grounding could not choose
+it), ``wrong_object`` (grounding chose another region), then the pick's own outcomes
+(``ik_failure``, ``missed``, ``lift_failed``, ``lifted_other_body``, ``slip_during_transport``,
+``outside_drop_zone``).
+
+Determinism: physics runs by step counts, torch runs with a fixed thread count, the segmenter and
+the antipodal sampler are seeded, and no wall-clock value enters a result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from functools import cache
+from typing import Any, Literal, get_args
+
+import numpy as np
+import numpy.typing as npt
+import pybullet as p
+
+from craft_e.runtime import grounding as grounding_api
+from craft_e.runtime.encoders.image import ImageEncoder
+from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
+from craft_e.runtime.grounding import Grounder, Grounding
+from craft_e.runtime.perception.observation import Observation
+from craft_e.runtime.perception.roi import ROI, box_iou
+from craft_e.runtime.perception.segment import SegmentConfig, segment
+from craft_e.runtime.sim.assets import object_catalog
+from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
+from craft_e.runtime.sim.oracle import gt_rois, oracle_grasp
+from craft_e.runtime.sim.scene import Scene, SceneSpec
+
+FloatArray = npt.NDArray[np.float64]
+BoolMask = npt.NDArray[np.bool_]
+
+GraspSource = Literal["grconvnet", "ggcnn", "ggcnn2", "antipodal", "oracle"]
+RoiSource = Literal["predicted", "oracle"]
+GRASP_SOURCES: tuple[str, ...] = get_args(GraspSource)
+ROI_SOURCES: tuple[str, ...] = get_args(RoiSource)
+
+
+class Failure(StrEnum):
+    """Why an episode did not succeed (``success`` when it did); see the module docstring."""
+
+    SUCCESS = "success"
+    NO_TARGET_ROI = "no_target_roi"
+    NO_GRASP = "no_grasp"
+    WRONG_OBJECT = "wrong_object"
+    IK_FAILURE = "ik_failure"
+    MISSED = "missed"
+    LIFT_FAILED = "lift_failed"
+    LIFTED_OTHER_BODY = "lifted_other_body"
+    SLIP_DURING_TRANSPORT = "slip_during_transport"
+    OUTSIDE_DROP_ZONE = "outside_drop_zone"
+
+
+_PICK_FAILURES: dict[Outcome, Failure] = {
+    Outcome.SUCCESS: Failure.SUCCESS,
+    Outcome.NO_GRASP: Failure.NO_GRASP,
+    Outcome.IK_FAILURE: Failure.IK_FAILURE,
+    Outcome.MISSED: Failure.MISSED,
+    Outcome.LIFT_FAILED: Failure.LIFT_FAILED,
+    Outcome.WRONG_OBJECT: Failure.LIFTED_OTHER_BODY,  # physics: the hand lifted another body
+    Outcome.SLIP_DURING_TRANSPORT: Failure.SLIP_DURING_TRANSPORT,
+    Outcome.OUTSIDE_DROP_ZONE: Failure.OUTSIDE_DROP_ZONE,
+}
+
+
+@dataclass(frozen=True)
+class FingerGeometry:
+    """The open hand seen from above (Franka hand; the executor always opens it fully)."""
+
+    half_opening: float = 0.04  # m from the grasp centre to each pad's inner face
+    clearance: float = 0.002  # m wanted between each pad and the object as the fingers descend
+    thickness: float = 0.012  # m of finger along the closing axis: a narrower gap takes no finger
+    pad_half_width: float = 0.01  # m of pad across the closing axis, each side of the axis
+    height_tolerance: float = 0.003  # m: surfaces this close to the finger tips are not squeezed
+    min_points: int = 4  # pixels, so single noisy depth pixels do not count as an object
+
+    @property
+    def max_span(self) -> float:
+        return 2 * (self.half_opening - self.clearance)
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Choices of one evaluation run; a frozen value so reports can record it."""
+
+    grasp: GraspSource = "grconvnet"
+    rois: RoiSource = "predicted"
+    max_grasps: int = 5  # raw candidates per ROI
+    min_quality: float = 0.2  # the networks' peak threshold (as in the originals)
+    fit_filter: bool = True  # keep only grasps whose object section fits the opening (finger_check)
+    ik_filter: bool = True  # keep only grasps whose whole pick is IK-feasible
+    detect_iou: float = 0.5
+    torch_threads: int = 1  # fixed, for speed on small hosts and bit-identical results
+    fingers: FingerGeometry = field(default_factory=FingerGeometry)
+    pick: PickConfig = field(default_factory=PickConfig)
+    segment: SegmentConfig = field(default_factory=SegmentConfig)
+
+    def __post_init__(self) -> None:
+        if self.grasp not in GRASP_SOURCES:
+            raise ValueError(f"grasp source {self.grasp!r}: choose one of {', '.join(GRASP_SOURCES)}")
+        if self.rois not in ROI_SOURCES:
+            raise ValueError(f"ROI source {self.rois!r}: choose one of {', '.join(ROI_SOURCES)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "grasp": self.grasp,
+            "rois": self.rois,
+            "max_grasps": self.max_grasps,
+            "min_quality": self.min_quality,
+            "fit_filter": self.fit_filter,
+            "ik_filter": self.ik_filter,
+            "detect_iou": self.detect_iou,
+            "torch_threads": self.torch_threads,
+        }
+
+
+@cache
+def sim_vocabulary() -> tuple[str, ...]:
+    """The scene's object vocabulary for ``p(o | r)``: every sim object's plain name, sorted.
+
+    A robot does not know which objects are on its table, only which it might meet; the catalog
+    is that set (62 distinct names for 74 assets).
+    """
+    return tuple(sorted({a.name for a in object_catalog().values()}))
+
+
+# ---------------------------------------------------------------------------------------------
+# perception
+
+
+@dataclass(frozen=True)
+class GraspCandidate:
+    """One raw grasp of an ROI: the image rectangle, its world pose, and the robot's checks.
+
+    ``fits``/``reachable`` are None when not checked (checks stop at the first usable grasp).
+    """
+
+    rect: Grasp2D
+    pose: TopDownGrasp | None  # None: no valid depth under the centre
+    fits: bool | None = None
+    reachable: bool | None = None
+    detail: str = ""
+
+    @property
+    def quality(self) -> float:
+        return float(self.rect.quality)
+
+
+@dataclass(frozen=True)
+class PerceivedROI:
+    """An ROI with its grasps, the grasp the robot would use, and its image embedding."""
+
+    roi: ROI
+    candidates: tuple[GraspCandidate, ...]  # raw, best first
+    usable: tuple[GraspCandidate, ...]  # what grounding sees (best first)
+    embedding: npt.NDArray[np.float32]
+    body: int | None  # the scene body the mask covers most (diagnostics only, never grounding)
+    target_iou: float  # box IoU with the target's ground-truth box
+
+
+@dataclass(frozen=True)
+class ScenePerception:
+    """Everything perceived once per episode and shared by all methods."""
+
+    obs: Observation
+    rois: tuple[PerceivedROI, ...]
+    target_body: int
+    target_box: tuple[int, int, int, int] | None  # None: the target is not visible
+    target_roi: int | None  # index of the ROI that is the target (best IoU >= detect_iou)
+    three_d: bool
+    three_d_detail: str
+
+
+@contextlib.contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run a block with ``n`` torch intra-op threads (restored afterwards)."""
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def raster_order(rois: Sequence[ROI]) -> list[ROI]:
+    """ROIs sorted by their first pixel in raster order, as the segmenter returns them.
+
+    ``gt_rois`` lists the target first (scene order); grounding must not get that hint, not even
+    through the stable tie-breaking of its ranking.
+    """
+    return sorted(rois, key=lambda r: int(np.argmax(r.mask.reshape(-1))))
+
+
+def majority_body(obs: Observation, mask: BoolMask, bodies: Sequence[int]) -> int | None:
+    """The scene body with the most pixels under ``mask`` (None if it covers none)."""
+    if obs.seg is None:
+        return None
+    labels = obs.seg[mask]
+    counts = {b: int(np.count_nonzero(labels == b)) for b in bodies}
+    best = max(counts, key=lambda b: (counts[b], -b), default=None)
+    return best if best is not None and counts[best] > 0 else None
+
+
+def finger_check(
+    material: FloatArray, pose: TopDownGrasp, tip_z: float, fingers: FingerGeometry
+) -> tuple[bool, str]:
+    """Does the object fit between the open fingers at their height? (ok, why not)
+
+    ``material`` ``[m, 3]`` are the object's surface points (its ROI's depth pixels in the
+    world). Only surface above the finger tips ``tip_z`` is squeezed, so one finger may go inside
+    a cup for a rim grasp. Points within a pad-wide strip along the closing axis are projected on
+    it and split into runs where a gap is wide enough for a finger; the runs that reach between
+    the open pads are what the fingers close on. The grasp fits if their total span leaves the
+    clearance on both sides. The span, not the centring, decides: the two fingers close
+    symmetrically and push an off-centre object to the middle.
+
+    The span rule was checked against physics on label-free random scenes (GR-ConvNet's top-3
+    grasps of 70 targets, 115 picks): 85% of the grasps it kept succeeded, against 27% of those
+    it rejected, and it kept 87% of the grasps that succeeded.
+    """
+    axis = np.array([np.cos(pose.yaw), np.sin(pose.yaw)])
+    normal = np.array([-axis[1], axis[0]])
+    rel = material[:, :2] - np.asarray(pose.position[:2], dtype=np.float64)
+    squeezed = (np.abs(rel @ normal) <= fingers.pad_half_width) & (
+        material[:, 2] > tip_z + fingers.height_tolerance)
+    along = np.sort(rel[squeezed] @ axis)  # [k]
+    if along.size < fingers.min_points:
+        return False, "no object surface between the fingers at their height"
+    breaks = np.nonzero(np.diff(along) > fingers.thickness)[0]
+    lows = along[np.concatenate([[0], breaks + 1])]
+    highs = along[np.concatenate([breaks, [len(along) - 1]])]
+    between = (highs > -fingers.half_opening) & (lows < fingers.half_opening)  # runs the pads meet
+    if not np.any(between):
+        return False, "no object surface between the fingers at their height"
+    span = float(highs[between].max() - lows[between].min())
+    if span > fingers.max_span:
+        return False, (f"object section {span * 100:.1f} cm does not fit the "
+                       f"{fingers.max_span * 100:.1f} cm opening")
+    return True, ""
+
+
+def tip_height(pose: TopDownGrasp, pick: PickConfig, table_z: float) -> float:
+    """Height of the finger tips at the grasp, as ``execute_pick`` will place them."""
+    from craft_e.runtime.sim.robot_urdf import FINGERTIP_BELOW_TCP
+
+    tcp = max(float(pose.position[2]) - pick.insertion_depth,
+              table_z + FINGERTIP_BELOW_TCP + pick.table_clearance)
+    return tcp - FINGERTIP_BELOW_TCP
+
+
+def _oracle_rect(
+    scene: Scene, obs: Observation, body: int, mask: BoolMask
+) -> list[tuple[Grasp2D, TopDownGrasp]]:
+    """The oracle grasp of ``body`` as a rectangle (quality 1) if its centre lies on ``mask``."""
+    pose = oracle_grasp(scene, body)
+    if pose is None:
+        return []
+    rect = pose_to_rect(pose, obs.intrinsics, obs.cam_to_world, quality=1.0)
+    h, w = mask.shape
+    col = min(max(round(rect.center_xy[0]), 0), w - 1)
+    row = min(max(round(rect.center_xy[1]), 0), h - 1)
+    return [(rect, pose)] if mask[row, col] else []
+
+
+def _raw_candidates(
+    scene: Scene, obs: Observation, roi: ROI, body: int | None, config: PipelineConfig
+) -> list[GraspCandidate]:
+    """Grasp candidates of one ROI, best first, with their world poses."""
+    if config.grasp == "oracle":
+        if body is None:
+            return []
+        return [GraspCandidate(r, pose) for r, pose in _oracle_rect(scene, obs, body, roi.mask)]
+    from craft_e.runtime.grasp.predict import predict_grasps
+
+    rects = predict_grasps(
+        config.grasp, obs.rgb, obs.depth, roi.mask, config.max_grasps,
+        intrinsics=obs.intrinsics, min_quality=config.min_quality,
+    )
+    out: list[GraspCandidate] = []
+    for rect in rects:
+        try:
+            pose: TopDownGrasp | None = rect_to_pose(rect, obs.depth, obs.intrinsics, obs.cam_to_world)
+        except ValueError:
+            pose = None
+        out.append(GraspCandidate(rect, pose))
+    return out
+
+
+@dataclass(frozen=True)
+class _Surfaces:
+    """Depth points a grasp check needs: one object's surface above the table."""
+
+    material: FloatArray  # [m, 3] world
+    table_z: float
+
+
+def _check(
+    env: SimEnv, candidate: GraspCandidate, surfaces: _Surfaces, config: PipelineConfig,
+    fit: bool, ik: bool,
+) -> GraspCandidate:
+    """Run the requested checks on one candidate (fingers first: cheap; IK costs ~50 ms)."""
+    if candidate.pose is None:
+        return GraspCandidate(candidate.rect, None, False, False, "no valid depth at the centre")
+    fits: bool | None = None
+    detail = ""
+    if fit:
+        tip = tip_height(candidate.pose, config.pick, surfaces.table_z)
+        fits, detail = finger_check(surfaces.material, candidate.pose, tip, config.fingers)
+        if not fits:
+            return GraspCandidate(candidate.rect, candidate.pose, False, None, detail)
+    reachable: bool | None = None
+    if ik:
+        why = plan_pick(env, candidate.pose, config.pick)
+        reachable = why is None
+        detail = why or ""
+    return GraspCandidate(candidate.rect, candidate.pose, fits, reachable, detail)
+
+
+def _usable(
+    env: SimEnv, candidates: list[GraspCandidate], surfaces: _Surfaces, config: PipelineConfig
+) -> tuple[list[GraspCandidate], tuple[GraspCandidate, ...]]:
+    """(candidates with check results filled in, the grasps grounding may use).
+
+    With checks on, only the best candidate that passes them is usable: the robot would execute
+    exactly that one. With checks off, every candidate with a pose is.
+    """
+    if not (config.fit_filter or config.ik_filter):
+        return candidates, tuple(c for c in candidates if c.pose is not None)
+    checked: list[GraspCandidate] = []
+    chosen: GraspCandidate | None = None
+    for c in candidates:
+        if chosen is not None:
+            checked.append(c)
+            continue
+        c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter)
+        checked.append(c)
+        if c.pose is not None and c.fits is not False and c.reachable is not False:
+            chosen = c
+    return checked, (() if chosen is None else (chosen,))
+
+
+def _three_d(
+    env: SimEnv, obs: Observation, target: PerceivedROI | None, target_body: int,
+    surfaces: _Surfaces, config: PipelineConfig,
+) -> tuple[bool, str]:
+    """The 3D metric (see the module docstring) and why it failed."""
+    if target is None:
+        return False, "no ROI matches the target"
+    if not target.candidates:
+        return False, "no grasp candidate on the target's ROI"
+    assert obs.seg is not None
+    target_mask = obs.seg == target_body
+    h, w = target_mask.shape
+    reasons: list[str] = []
+    for c in target.candidates:
+        col = min(max(round(c.rect.center_xy[0]), 0), w - 1)
+        row = min(max(round(c.rect.center_xy[1]), 0), h - 1)
+        if not target_mask[row, col]:
+            reasons.append("centre off the target")
+            continue
+        checked = _check(env, c, surfaces, config, fit=True, ik=True)
+        if checked.fits and checked.reachable:
+            return True, ""
+        reasons.append(checked.detail)
+    return False, "; ".join(dict.fromkeys(reasons))
+
+
+def perceive(
+    env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation | None = None
+) -> ScenePerception:
+    """Capture (unless ``obs`` is given), find ROIs and grasps, check them, embed the crops.
+
+    ``env`` holds the built scene with the arm at home; nothing here moves it.
+    """
+    from craft_e.runtime.encoders.image import crop_box
+
+    scene = env.scene
+    obs = obs if obs is not None else env.capture()
+    bodies = [o.body_id for o in scene.objects]
+    truth = gt_rois(obs, scene)
+    target_body = scene.target.body_id
+    target_gt = next((r for r in truth if r.label == target_body), None)
+    rois = raster_order(truth) if config.rois == "oracle" else segment(obs, config.segment).rois
+    world = obs.points_world()  # [H, W, 3]
+    table_z = scene.layout.table_z
+    raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+    perceived: list[PerceivedROI] = []
+    owners = [roi.label if config.rois == "oracle" else majority_body(obs, roi.mask, bodies)
+              for roi in rois]
+    with torch_threads(config.torch_threads):
+        raw = [_raw_candidates(scene, obs, roi, body, config)
+               for roi, body in zip(rois, owners, strict=True)]
+        crops = [crop_box(obs.rgb, roi.box_xywh) for roi in rois]
+        embeddings = encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
+    for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
+        surfaces = _Surfaces(world[roi.mask & raised], table_z)
+        candidates, usable = _usable(env, raw[i], surfaces, config)
+        iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
+        perceived.append(PerceivedROI(roi, tuple(candidates), usable,
+                                      np.asarray(embeddings[i], np.float32), body, iou))
+    target_roi = None
+    if perceived:
+        best = max(range(len(perceived)), key=lambda i: (perceived[i].target_iou, -i))
+        if perceived[best].target_iou >= config.detect_iou:
+            target_roi = best
+    assert obs.seg is not None
+    target_surfaces = _Surfaces(world[(obs.seg == target_body) & raised], table_z)
+    three_d, why = _three_d(env, obs, perceived[target_roi] if target_roi is not None else None,
+                            target_body, target_surfaces, config)
+    return ScenePerception(
+        obs=obs,
+        rois=tuple(perceived),
+        target_body=target_body,
+        target_box=target_gt.box_xywh if target_gt is not None else None,
+        target_roi=target_roi,
+        three_d=three_d,
+        three_d_detail=why,
+    )
+
+
+def grounding_rois(perception: ScenePerception) -> list[grounding_api.ROI]:
+    """The grounder's view of the scene: boxes, usable grasps with scores, embeddings.
+
+    Labels are ROI numbers, never object names: the grounder must not see the ground truth.
+    """
+    return [
+        grounding_api.ROI(
+            box_xywh=(float(r.roi.box_xywh[0]), float(r.roi.box_xywh[1]),
+                      float(r.roi.box_xywh[2]), float(r.roi.box_xywh[3])),
+            grasp_scores=[c.quality for c in r.usable],
+            grasps=list(r.usable),
+            image_embedding=r.embedding,
+            mask=r.roi.mask,
+            label=f"roi{i}",
+        )
+        for i, r in enumerate(perception.rois)
+    ]
+
+
+# ---------------------------------------------------------------------------------------------
+# execution from one saved state
+
+
+class SavedStart:
+    """The episode's start state: scene settled, arm at home. Every pick restarts from it."""
+
+    def __init__(self, env: SimEnv) -> None:
+        self.env = env
+        env.robot.reset_home()
+        self.state_id = int(p.saveState(physicsClientId=env.client))
+
+    def restore(self) -> None:
+        p.restoreState(stateId=self.state_id, physicsClientId=self.env.client)
+        # restoreState brings back positions and velocities, not motor targets: command home again
+        self.env.robot.reset_home()
+
+    def release(self) -> None:
+        if self.env.client >= 0:
+            p.removeState(self.state_id, physicsClientId=self.env.client)
+
+
+@dataclass(frozen=True)
+class MethodOutcome:
+    """What one method did in one episode."""
+
+    method: str
+    grounding: Grounding
+    chosen_roi: int | None
+    chosen_iou: float
+    chosen_body: int | None
+    detect: bool
+    failure: Failure
+    pick: PickResult | None  # None when nothing was executed
+    grasp: GraspCandidate | None
+
+    @property
+    def success(self) -> bool:
+        return self.failure is Failure.SUCCESS
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """One episode: the shared perception and each method's outcome."""
+
+    spec: SceneSpec
+    perception: ScenePerception
+    outcomes: dict[str, MethodOutcome]
+    body_assets: dict[int, str]
+
+
+def _not_detected(perception: ScenePerception) -> Failure:
+    if perception.target_roi is None:
+        return Failure.NO_TARGET_ROI
+    if not perception.rois[perception.target_roi].usable:
+        return Failure.NO_GRASP
+    return Failure.WRONG_OBJECT
+
+
+def run_episode(
+    env: SimEnv,
+    spec: SceneSpec,
+    grounders: Mapping[str, Grounder],
+    encoder: ImageEncoder,
+    config: PipelineConfig | None = None,
+    *,
+    before_pick: Callable[[str], None] | None = None,
+) -> EpisodeResult:
+    """Build ``spec`` in ``env``, perceive once, then ground and execute per method.
+
+    ``before_pick(method)`` is called right before a pick is simulated (e.g. to start recording
+    frames); picks already simulated for the same ROI are reused and do not call it.
+    """
+    cfg = config or PipelineConfig()
+    env.reset(spec)
+    start = SavedStart(env)
+    try:
+        perception = perceive(env, encoder, cfg)
+        rois = grounding_rois(perception)
+        picks: dict[int, PickResult] = {}
+        outcomes: dict[str, MethodOutcome] = {}
+        for name, grounder in grounders.items():
+            grounding = grounder.ground(spec.verb, rois)
+            chosen = grounding.chosen
+            if chosen is None:
+                outcomes[name] = MethodOutcome(name, grounding, None, 0.0, None, False,
+                                               _not_detected(perception), None, None)
+                continue
+            roi = perception.rois[chosen.index]
+            detect = perception.target_box is not None and roi.target_iou >= cfg.detect_iou
+            grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
+            if not detect:
+                outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
+                                               False, _not_detected(perception), None, grasp)
+                continue
+            if chosen.index not in picks:
+                start.restore()
+                if before_pick is not None:
+                    before_pick(name)
+                picks[chosen.index] = execute_pick(
+                    env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick
+                )
+            pick = picks[chosen.index]
+            outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
+                                           True, _PICK_FAILURES[pick.outcome], pick, grasp)
+        return EpisodeResult(spec, perception, outcomes, dict(env.scene.body_assets))
+    finally:
+        start.release()

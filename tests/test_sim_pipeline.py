@@ -1,0 +1,167 @@
+"""The testbed pipeline end to end (perceive once, ground per method, execute), its grasp check,
+and ``craft sim demo``."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from craft_e.paths import KB_DIR
+from craft_e.runtime.grasp.geometry import TopDownGrasp
+from craft_e.runtime.perception.roi import roi_from_mask
+from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.episode import execute_pick
+from craft_e.runtime.sim.pipeline import (
+    Failure,
+    FingerGeometry,
+    PipelineConfig,
+    SavedStart,
+    finger_check,
+    perceive,
+    raster_order,
+    run_episode,
+    sim_vocabulary,
+)
+from craft_e.runtime.sim.scene import SceneSpec
+
+# The episode test of test_sim_episode.py: the oracle grasp of the bottle is known to succeed.
+EASY = SceneSpec(verb="pour", target="mustard_bottle",
+                 distractors=("foam_brick", "knife", "apple", "stapler_2"), seed=2)
+
+
+@pytest.fixture(scope="module")
+def encoder() -> Any:
+    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+
+    return ConSEImageEncoder(threads=1)
+
+
+@pytest.fixture(scope="module")
+def grounders() -> dict[str, Any]:
+    from craft_e.runtime.bundle import load_bundle
+    from craft_e.runtime.grounding import Grounder
+
+    bundle = load_bundle(KB_DIR / "craft-e-default")
+    vocabulary = list(sim_vocabulary())
+    return {"CRAFT-E": Grounder(bundle, vocabulary=vocabulary),
+            "alignment-only": Grounder(bundle, beta=0.0, vocabulary=vocabulary)}
+
+
+@pytest.fixture(scope="module")
+def env() -> Iterator[SimEnv]:
+    with SimEnv() as sim:
+        yield sim
+
+
+def test_vocabulary_is_the_plain_names_every_bundle_knows() -> None:
+    from craft_e.runtime.bundle import load_bundle
+
+    names = sim_vocabulary()
+    assert len(names) == 62 and "mustard bottle" in names and "mustard_bottle" not in names
+    bundle = load_bundle(KB_DIR / "craft-e-default")
+    assert [n for n in names if n not in bundle.object_index] == []
+
+
+def test_oracle_episode_runs_end_to_end_with_metrics(
+    env: SimEnv, grounders: dict[str, Any], encoder: Any
+) -> None:
+    config = PipelineConfig(grasp="oracle", rois="oracle")
+    result = run_episode(env, EASY, grounders, encoder, config)
+    per = result.perception
+    assert len(per.rois) == 5 and per.target_roi is not None
+    assert per.three_d, per.three_d_detail  # the oracle grasp of the bottle is viable
+    target = per.rois[per.target_roi]
+    assert target.target_iou == 1.0 and target.usable and target.usable[0].reachable
+    assert set(result.outcomes) == {"CRAFT-E", "alignment-only"}
+    for outcome in result.outcomes.values():
+        assert outcome.chosen_roi is not None
+        # nothing of the ground truth reaches the grounder: labels are ROI numbers
+        assert all(r.roi.label == f"roi{r.index}" for r in outcome.grounding.ranked)
+        if outcome.detect:
+            assert outcome.pick is not None and outcome.failure is Failure.SUCCESS
+        else:
+            assert outcome.pick is None and outcome.failure is Failure.WRONG_OBJECT
+            assert outcome.chosen_iou < 0.5
+    chosen = {o.chosen_roi for o in result.outcomes.values()}
+    again = run_episode(env, EASY, grounders, encoder, config)
+    assert {o.chosen_roi for o in again.outcomes.values()} == chosen
+    assert [o.pick for o in again.outcomes.values()] == [o.pick for o in result.outcomes.values()]
+
+
+def test_every_pick_restarts_from_the_saved_state(env: SimEnv, encoder: Any) -> None:
+    env.reset(EASY)
+    start = SavedStart(env)
+    try:
+        per = perceive(env, encoder, PipelineConfig(grasp="oracle", rois="oracle"))
+        assert per.target_roi is not None
+        pose = per.rois[per.target_roi].usable[0].pose
+        assert pose is not None
+        results = []
+        for _ in range(2):
+            start.restore()
+            results.append(execute_pick(env, pose, per.target_body))
+        assert results[0] == results[1] and results[0].outcome.value == "success"
+    finally:
+        start.release()
+
+
+def _box(cx: float, cy: float, half_x: float, half_y: float, top: float) -> np.ndarray:
+    """Surface points (1 mm grid) of a box standing on the table."""
+    xs, ys = np.meshgrid(np.arange(cx - half_x, cx + half_x, 0.001), np.arange(cy - half_y, cy + half_y, 0.001))
+    return np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, top)], axis=1)
+
+
+def test_finger_check_fits_narrow_sections_and_rim_grasps() -> None:
+    fingers = FingerGeometry()
+    bar = _box(0.0, 0.0, 0.015, 0.10, 0.03)  # 3 cm wide, 20 cm long
+    across = TopDownGrasp(np.array([0.0, 0.0, 0.03]), 0.0, 0.03)  # closing along x
+    along = TopDownGrasp(np.array([0.0, 0.0, 0.03]), math.pi / 2, 0.03)
+    assert finger_check(bar, across, 0.005, fingers) == (True, "")
+    ok, why = finger_check(bar, along, 0.005, fingers)
+    assert not ok and "does not fit" in why
+    assert finger_check(bar, across, 0.05, fingers)[0] is False  # nothing above the finger tips
+    # a 12 cm cup: across its middle it does not fit; across one wall (a rim grasp) it does,
+    # because the cup's inside lies below the finger tips
+    radius = np.hypot(*np.meshgrid(np.arange(-0.06, 0.06, 0.001), np.arange(-0.06, 0.06, 0.001)))
+    xs, ys = np.meshgrid(np.arange(-0.06, 0.06, 0.001), np.arange(-0.06, 0.06, 0.001))
+    z = np.where(radius > 0.055, 0.08, 0.005)
+    cup = np.stack([xs[radius < 0.06], ys[radius < 0.06], z[radius < 0.06]], axis=1)
+    middle = TopDownGrasp(np.array([0.0, 0.0, 0.005]), 0.0, 0.1)
+    rim = TopDownGrasp(np.array([0.0575, 0.0, 0.08]), 0.0, 0.01)
+    assert not finger_check(cup, middle, 0.02, fingers)[0]
+    assert finger_check(cup, rim, 0.08 - 0.03 - 0.0136, fingers)[0]
+
+
+def test_oracle_rois_come_in_raster_order_not_target_first() -> None:
+    masks = []
+    for row in (30, 5, 18):
+        m = np.zeros((40, 40), dtype=bool)
+        m[row : row + 4, 10:14] = True
+        masks.append(m)
+    rois = [roi_from_mask(m, label=i) for i, m in enumerate(masks)]
+    assert [r.label for r in raster_order(rois)] == [1, 2, 0]
+
+
+def test_sim_demo_writes_figure_gif_and_explanation(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli import app
+
+    result = CliRunner().invoke(app, ["sim", "demo", "--verb", "pour", "--target", "mustard_bottle",
+                                      "--grasp", "oracle", "--rois", "oracle", "--gif-every", "60",
+                                      "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    png, gif = tmp_path / "pour_0.png", tmp_path / "pour_0.gif"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert gif.read_bytes()[:6] == b"GIF89a"
+    import imageio.v3 as iio
+
+    frames = iio.imread(gif, index=None)
+    assert frames.shape[-3:-1] == (240, 320)
+    assert "E_total" in result.output and "outcome:" in result.output
+    assert (tmp_path / "pour_0.json").is_file()
