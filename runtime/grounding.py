@@ -415,6 +415,18 @@ class Grounder:
             self._paths[key] = found
         return found
 
+    def with_weights(self, alpha: float, beta: float, gamma: float) -> Grounder:
+        """The same grounder with other energy weights, sharing every precomputed matrix.
+
+        The weights are read only when the three energies are combined, so a shallow copy is
+        enough; keep it that way if precomputation ever starts depending on them.
+        """
+        import copy
+
+        variant = copy.copy(self)
+        variant.alpha, variant.beta, variant.gamma = float(alpha), float(beta), float(gamma)
+        return variant
+
     def knows_verb(self, verb: str) -> bool:
         """Whether ``verb`` is in the bundle (else ``ground`` needs the open-vocabulary fallback)."""
         return normalize_verb_name(verb) in self.verb_index

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import base64
 import binascii
-import copy
 import io
 import json
 import threading
@@ -213,11 +212,11 @@ class GroundingService:
         base = self.grounders[form]
         if options is None or (options.alpha, options.beta, options.gamma) == (None, None, None):
             return base
-        variant = copy.copy(base)
-        variant.alpha = base.alpha if options.alpha is None else options.alpha
-        variant.beta = base.beta if options.beta is None else options.beta
-        variant.gamma = base.gamma if options.gamma is None else options.gamma
-        return variant
+        return base.with_weights(
+            base.alpha if options.alpha is None else options.alpha,
+            base.beta if options.beta is None else options.beta,
+            base.gamma if options.gamma is None else options.gamma,
+        )
 
     def check_rois(self, count: int, field_name: str) -> None:
         if count > self.max_rois:

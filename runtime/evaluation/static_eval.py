@@ -93,7 +93,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
     ``width_m`` is the object's section, not the opening.
     """
     from craft_e.runtime.sim.oracle import (
-        _cross_section,  # the oracle's own rule, shared on purpose
+        cross_section,  # the oracle's own rule, shared on purpose
     )
 
     cfg = config or GTGraspConfig()
@@ -121,7 +121,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
             across = (xy - centroid) @ closing
             offsets = np.arange(0.0, float(np.abs(along).max()), o.slide_step)
             for offset in sorted(np.concatenate([offsets, -offsets[1:]]).tolist(), key=abs):
-                section = _cross_section(along, across, float(offset), o, parallel)
+                section = cross_section(along, across, float(offset), o, parallel)
                 if section is None:
                     continue
                 low, high = section

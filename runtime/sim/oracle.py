@@ -98,7 +98,7 @@ def oracle_grasp(
     offsets = np.arange(0.0, reach, cfg.slide_step)
     candidates = sorted(np.concatenate([offsets, -offsets[1:]]), key=abs)
     for offset, parallel in [(o, True) for o in candidates] + [(o, False) for o in candidates]:
-        section = _cross_section(along, across, float(offset), cfg, parallel)
+        section = cross_section(along, across, float(offset), cfg, parallel)
         if section is None:
             continue
         low, high = section
@@ -112,7 +112,7 @@ def oracle_grasp(
     return None
 
 
-def _cross_section(
+def cross_section(
     along: FloatArray, across: FloatArray, offset: float, cfg: OracleConfig, parallel: bool
 ) -> tuple[float, float] | None:
     """(low, high) extent across the strip at ``offset`` if it fits (and, if asked, is not
