@@ -30,7 +30,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import importlib
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn
@@ -320,17 +319,10 @@ def eval_imagenet(
         )
     except (LabelsError, FileNotFoundError) as exc:
         fail(str(exc))
-    table = report.to_markdown()
-    sys.stdout.write(table)
-    if json_out is not None:
-        from craft_e.runtime.evaluation.common import write_json
+    from craft_e.runtime.evaluation.common import emit_report
 
-        write_json(json_out, report.to_dict())
-        err.print(f"wrote {json_out}", highlight=False)
-    if markdown is not None:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
-        markdown.write_text(table, encoding="utf-8")
-        err.print(f"wrote {markdown}", highlight=False)
+    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+                lambda msg: err.print(msg, highlight=False))
 
 
 def register_command_modules(modules: list[str] | None = None) -> list[str]:

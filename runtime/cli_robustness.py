@@ -7,7 +7,6 @@ writes JSON, Markdown and a plot. Exit codes as for ``craft eval imagenet``: 0 o
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated, NoReturn
 
@@ -50,7 +49,7 @@ def robustness_imagenet(
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
     from craft_e.paths import KB_DIR
     from craft_e.runtime.encoders.conse import ENCODER_CACHE_DIR
-    from craft_e.runtime.evaluation.common import write_json
+    from craft_e.runtime.evaluation.common import emit_report
     from craft_e.runtime.evaluation.imagenet import LabelsError, default_methods
     from craft_e.runtime.evaluation.robustness import (
         DEFAULT_LEVELS,
@@ -85,15 +84,8 @@ def robustness_imagenet(
                                      energy_form=energy_form)  # type: ignore[arg-type]
     except (LabelsError, FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
-    table = report.to_markdown()
-    sys.stdout.write(table)
-    if json_out is not None:
-        write_json(json_out, report.to_dict())
-        _err.print(f"wrote {json_out}", highlight=False)
-    if markdown is not None:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
-        markdown.write_text(table, encoding="utf-8")
-        _err.print(f"wrote {markdown}", highlight=False)
+    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+                lambda msg: _err.print(msg, highlight=False))
     if plot is not None:
         report.plot(plot)
         _err.print(f"wrote {plot}", highlight=False)

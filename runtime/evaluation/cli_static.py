@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, cast
@@ -45,7 +44,7 @@ def register(app: typer.Typer) -> None:
         from craft_e.paths import KB_DIR, REPO_ROOT
         from craft_e.runtime.cli import err, fail
         from craft_e.runtime.evaluation.cli_sim import ProgressBar, split_names
-        from craft_e.runtime.evaluation.common import write_json
+        from craft_e.runtime.evaluation.common import emit_report
         from craft_e.runtime.evaluation.sim_eval import LabelsError, select_methods
         from craft_e.runtime.evaluation.static_eval import evaluate_static, parse_noise
         from craft_e.runtime.sim.assets import SharedAssetsMissingError
@@ -72,13 +71,6 @@ def register(app: typer.Typer) -> None:
         except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError,
                 ValueError, RuntimeError) as exc:
             fail(str(exc))
-        table = report.to_markdown()
-        sys.stdout.write(table)
         err.print(f"{report.config['episodes']} scenes in {time.perf_counter() - start:.0f} s", highlight=False)
-        if json_out is not None:
-            write_json(json_out, report.to_dict())
-            err.print(f"wrote {json_out}", highlight=False)
-        if markdown is not None:
-            markdown.parent.mkdir(parents=True, exist_ok=True)
-            markdown.write_text(table, encoding="utf-8")
-            err.print(f"wrote {markdown}", highlight=False)
+        emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+                    lambda msg: err.print(msg, highlight=False))

@@ -164,3 +164,24 @@ def markdown_table(results: Sequence[MethodResult], skipped: Sequence[SkippedMet
 def write_json(path: Path, data: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+
+
+def emit_report(
+    table: str,
+    data: dict[str, Any],
+    json_out: Path | None,
+    markdown: Path | None,
+    log: Callable[[str], None],
+) -> None:
+    """What every ``craft eval`` command does with its result: the Markdown table on stdout,
+    and optionally the JSON and the table written to files (``log`` says where)."""
+    import sys
+
+    sys.stdout.write(table)
+    if json_out is not None:
+        write_json(json_out, data)
+        log(f"wrote {json_out}")
+    if markdown is not None:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(table, encoding="utf-8")
+        log(f"wrote {markdown}")
