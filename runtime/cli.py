@@ -12,8 +12,8 @@ Structure, so other modules can add commands without editing this file's command
 
 A module listed in ``COMMAND_MODULES`` defines ``register(app: typer.Typer) -> None`` and is
 imported when this module is; it may also ``from craft_e.runtime.cli import eval_app, sim_app``
-inside ``register``. A listed module that does not exist yet is skipped; one that exists but
-fails to import is an error (never hidden).
+inside ``register``. A listed module that is missing or fails to import is an error, never a
+silently absent command.
 
 Exit codes: 0 ok; 2 bad input or usage (files, boxes, unknown verb, bundle refused); 1 a check
 failed (reserved for verification commands).
@@ -329,12 +329,7 @@ def register_command_modules(modules: list[str] | None = None) -> list[str]:
     """Import each command module and call its ``register(app)``; returns those registered."""
     done: list[str] = []
     for name in COMMAND_MODULES if modules is None else modules:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name is not None and name.startswith(exc.name):
-                continue  # not written yet
-            raise
+        module = importlib.import_module(name)
         register = getattr(module, "register", None)
         if callable(register):
             register(app)
