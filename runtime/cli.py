@@ -207,8 +207,9 @@ def ground(
     vocabulary = None
     if vocab is not None:
         try:
-            vocabulary = [ln.strip() for ln in vocab.read_text(encoding="utf-8").splitlines()
-                          if ln.strip() and not ln.startswith("#")]
+            from craft_e.runtime.evaluation.common import read_name_list
+
+            vocabulary = read_name_list(vocab)
         except OSError as exc:
             fail(f"{vocab}: cannot read the vocabulary ({exc})")
     try:
@@ -304,8 +305,9 @@ def eval_imagenet(
     pool = None
     if classes is not None:
         try:
-            pool = [ln.strip() for ln in classes.read_text(encoding="utf-8").splitlines()
-                    if ln.strip() and not ln.startswith("#")]
+            from craft_e.runtime.evaluation.common import read_name_list
+
+            pool = read_name_list(classes)
         except OSError as exc:
             fail(f"{classes}: cannot read the classes file ({exc})")
     try:

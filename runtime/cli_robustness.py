@@ -49,7 +49,7 @@ def robustness_imagenet(
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
     from craft_e.paths import KB_DIR
     from craft_e.runtime.encoders.conse import ENCODER_CACHE_DIR
-    from craft_e.runtime.evaluation.common import emit_report
+    from craft_e.runtime.evaluation.common import emit_report, read_name_list
     from craft_e.runtime.evaluation.imagenet import LabelsError, default_methods
     from craft_e.runtime.evaluation.robustness import (
         DEFAULT_LEVELS,
@@ -71,8 +71,7 @@ def robustness_imagenet(
     pool = None
     if classes is not None:
         try:
-            pool = [ln.strip() for ln in classes.read_text(encoding="utf-8").splitlines()
-                    if ln.strip() and not ln.startswith("#")]
+            pool = read_name_list(classes)
         except OSError as exc:
             _fail(f"{classes}: cannot read the classes file ({exc})")
     try:

@@ -166,6 +166,17 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
+def read_name_list(path: Path) -> list[str]:
+    """Names from a text file, one per line; blank lines and ``#`` comment lines are skipped.
+
+    Raises ``OSError`` (the caller names the option the file came from)."""
+    return [
+        ln.strip()
+        for ln in path.read_text(encoding="utf-8").splitlines()
+        if ln.strip() and not ln.startswith("#")
+    ]
+
+
 def emit_report(
     table: str,
     data: dict[str, Any],
