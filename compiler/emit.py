@@ -15,7 +15,9 @@ from pathlib import Path
 
 from craft_e.schemas.v1.bundle import (
     BUILD_INFO_FILE,
+    BUNDLE_FILES,
     MANIFEST_FILE,
+    MANIFEST_SCHEMA_ID,
     BuildInfo,
     FileDigest,
     Manifest,
@@ -30,14 +32,125 @@ def model_json(model: Manifest | BuildInfo) -> bytes:
     return (json.dumps(model.model_dump(mode="json"), indent=2, sort_keys=True) + "\n").encode()
 
 
-def write_bundle(
-    out: Path, files: dict[str, bytes], manifest: Manifest, build_info: BuildInfo
+class OutPathError(ValueError):
+    """``--out`` names something that is not ours to replace; the message says what and why."""
+
+
+def _existing_bundle(path: Path) -> tuple[str, list[str]] | None:
+    """``(kb name, files that are not bundle files)`` of the bundle at ``path``, or None.
+
+    A folder is a bundle when it holds a regular ``manifest.json`` whose schema id is the bundle
+    manifest's. Other files beside it (notes a user put there, a stale file) are reported so the
+    build can refuse to delete them without ``--force``.
+    """
+    manifest_path = path / MANIFEST_FILE
+    try:
+        if manifest_path.is_symlink() or not manifest_path.is_file():
+            return None
+        if manifest_path.stat().st_size > 16 * 1024 * 1024:
+            return None
+        data = json.loads(manifest_path.read_bytes())
+        names = sorted(child.name for child in path.iterdir())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("schema_id") != MANIFEST_SCHEMA_ID:
+        return None
+    name = data.get("kb_name")
+    if not isinstance(name, str):
+        return None
+    allowed = {*BUNDLE_FILES, MANIFEST_FILE, BUILD_INFO_FILE}
+    return name, [n for n in names if n not in allowed]
+
+
+def check_out_path(
+    out: Path, kb_name: str, *, force: bool = False, inputs: tuple[Path, ...] = ()
 ) -> None:
-    """Write ``files`` + manifest + build info to ``out`` atomically (rename of a whole folder)."""
+    """Refuse an ``--out`` whose replacement would destroy something a user owns.
+
+    Only a missing path, an empty folder, or an existing CRAFT-E bundle may become the bundle.
+    A bundle of another kb name, or one with other files beside the bundle's, is replaced only
+    with ``force``; a user's folder, a file, a symlink, a mount point, a folder holding an input
+    or the working directory never are.
+    """
+    if os.path.islink(out):
+        raise OutPathError(
+            f"--out {out} is a symbolic link; give the real folder path (nothing was written)"
+        )
+    if not out.exists():
+        return
+    resolved = out.resolve()
+    if not resolved.is_dir():
+        raise OutPathError(
+            f"--out {out} is an existing file, not a bundle folder; choose a new folder path "
+            "(nothing was written)"
+        )
+    if os.path.ismount(resolved):
+        raise OutPathError(
+            f"--out {out} is a mount point; give a folder inside it (nothing was written)"
+        )
+    cwd = Path.cwd().resolve()
+    for inside in (cwd, *(p.resolve() for p in inputs)):
+        if inside == resolved or resolved in inside.parents:
+            raise OutPathError(
+                f"--out {out} contains {inside}, which the build reads or runs in; choose "
+                "another folder (nothing was written)"
+            )
+    try:
+        empty = not any(resolved.iterdir())
+    except OSError as exc:
+        raise OutPathError(
+            f"--out {out}: cannot list it ({exc.strerror}); nothing was written"
+        ) from None
+    if empty:
+        return
+    existing = _existing_bundle(resolved)
+    if existing is None:
+        raise OutPathError(
+            f"--out {out} is a folder that is not a CRAFT-E bundle (it has no bundle "
+            "manifest.json); a build only replaces a bundle. Choose a new or empty folder "
+            "(nothing was written)"
+        )
+    name, extras = existing
+    if force:
+        return
+    if extras:
+        shown = ", ".join(extras[:5]) + (" ..." if len(extras) > 5 else "")
+        raise OutPathError(
+            f"--out {out} is a bundle with other files in it ({shown}) that a rebuild would "
+            "delete; move them out, or pass --force to replace the folder (nothing was written)"
+        )
+    if name != kb_name:
+        raise OutPathError(
+            f"--out {out} holds the bundle {name!r}, not {kb_name!r}; pass --force to replace "
+            "it (nothing was written)"
+        )
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_bundle(
+    out: Path,
+    files: dict[str, bytes],
+    manifest: Manifest,
+    build_info: BuildInfo,
+    *,
+    force: bool = False,
+) -> None:
+    """Write ``files`` + manifest + build info to ``out`` atomically (rename of a whole folder).
+
+    The folder gets the modes a user expects (0777/0666 less the umask, e.g. 0755/0644), not
+    ``mkdtemp``'s 0700: a robot service running as another user must be able to read it.
+    """
+    check_out_path(out, manifest.kb_name, force=force)
     out = out.resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
+        os.chmod(staging, 0o777 & ~_umask())
         for name, data in files.items():
             (staging / name).write_bytes(data)
         (staging / MANIFEST_FILE).write_bytes(model_json(manifest))
@@ -46,6 +159,8 @@ def write_bundle(
             with path.open("rb") as handle:
                 os.fsync(handle.fileno())
         if out.exists():
+            # Check again right before the swap: the folder may have changed during the build.
+            check_out_path(out, manifest.kb_name, force=force)
             retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
             retired.rmdir()
             os.replace(out, retired)

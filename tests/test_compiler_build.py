@@ -205,7 +205,7 @@ def test_emit_replaces_an_existing_bundle_atomically(kb_a: FixtureKB, tmp_path: 
     out = tmp_path / "bundle"
     shutil.copytree(kb_a.bundle, out)
     (out / "stale.txt").write_text("from an older build", encoding="utf-8")
-    build(build_config(kb_a.cache, out))
+    build(build_config(kb_a.cache, out).model_copy(update={"force": True}))
     assert set(bundle_bytes(out)) == ALL_FILES, "the new bundle replaces the folder, not merges"
     assert [p.name for p in tmp_path.iterdir()] == ["bundle"]
 
