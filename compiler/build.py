@@ -28,7 +28,7 @@ from craft_e import __version__
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.draft import KnowledgeDraft
 from craft_e.compiler.embed import EmbeddingCache
-from craft_e.compiler.emit import file_digest, write_bundle
+from craft_e.compiler.emit import check_out_path, file_digest, write_bundle
 from craft_e.compiler.graph import build_graph, check_draft, coverage, graph_json, weight_matrices
 from craft_e.compiler.llm_knowledge import direct_llm_draft, llm_property_draft
 from craft_e.compiler.rdf import graph_turtle
@@ -70,6 +70,7 @@ class BuildConfig(BaseModel):
     tau: float = 0.5
     energy_form: EnergyForm = "sum-tanh"
     encoder_id: str = MINILM_ID
+    force: bool = False
 
 
 @dataclass
@@ -143,6 +144,11 @@ def build(
 ) -> BuildResult:
     """Run every pass and emit the bundle at ``config.out`` (atomically)."""
     started = time.perf_counter()
+    # Refuse a destructive --out before any work (and again right before the swap).
+    inputs = (config.verbs_file, config.objects_file, config.cache_root)
+    if config.overrides_file is not None:
+        inputs += (config.overrides_file,)
+    check_out_path(config.out, config.name, force=config.force, inputs=inputs)
     verbs = read_vocabulary(config.verbs_file, kind="verbs")
     objects = read_vocabulary(config.objects_file, kind="objects")
     cache = RecordCache(config.cache_root)
@@ -218,7 +224,7 @@ def build(
         duration_s=round(duration, 3),
         argv=sys.argv,
     )
-    write_bundle(config.out, files, manifest, info)
+    write_bundle(config.out, files, manifest, info, force=config.force)
     return BuildResult(
         config.out,
         manifest,
