@@ -36,6 +36,7 @@ from craft_e.compiler.sources.llm import LLMSource, Transport
 from craft_e.compiler.vocab import Vocabulary, read_vocabulary
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
 from craft_e.runtime.energies import EnergyForm, affordance_energy_matrix
+from craft_e.runtime.kb_diagnostics import diagnostics_model
 from craft_e.schemas.v1.bundle import (
     UNSEALED,
     BuildInfo,
@@ -187,6 +188,9 @@ def build(
         pass_counts={stage: dict(sorted(c.items())) for stage, c in sorted(draft.counters.items())},
         drops=sorted(draft.drops, key=lambda d: (d.stage, d.item, d.reason)),
         coverage=coverage(draft, energy),
+        diagnostics=diagnostics_model(
+            energy, w_vp, w_po, draft.verbs, properties, draft.objects, tau=config.tau
+        ),
     )
     files = {
         "graph.json": graph_json(graph),

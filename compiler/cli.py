@@ -102,7 +102,10 @@ def build(
         typer.Option(help="w_po threshold for an edge to count (default 0.5; 0 for direct)."),
     ] = None,
     energy_form: Annotated[
-        str, typer.Option(help="sum-tanh (paper, default) | normalized-product.")
+        str, typer.Option(
+            help="sum-tanh (paper, default) | normalized-product | specificity | required-veto "
+            "| specificity-veto (runtime/energies.py)."
+        )
     ] = "sum-tanh",
     cache: CacheOpt = CACHE_DIR,
     quiet: Annotated[bool, typer.Option(help="No progress bars.")] = False,
@@ -385,10 +388,13 @@ def curate_pending(
 
 
 def _register_extensions() -> None:
-    """Commands that live in their own modules (packing/signing)."""
+    """Commands that live in their own modules (packing/signing, diagnostics)."""
     from craft_e.compiler.cli_pack import register as register_pack
 
     register_pack(app)
+    from craft_e.compiler.cli_diagnose import register as register_diagnose
+
+    register_diagnose(app)
 
 
 _register_extensions()

@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from craft_e.runtime.bundle import Bundle
+from craft_e.runtime.kb_diagnostics import HEADLINE, bundle_diagnostics, headline_value
 
 #: Weight deltas are rounded to this many decimals before the threshold comparison, so that a
 #: change written as 0.2 -> 0.1 counts as exactly 0.1 (binary floats would say 0.1000...03).
@@ -34,6 +35,8 @@ MAX_ROWS = 100
 FLAG_RULES = ("top1-changed", "verb-removed", "any-change")
 BOUND_RULES = ("edges-removed", "weight-changes")
 VALID_RULES = (*FLAG_RULES, *(f"{r}>N" for r in BOUND_RULES))
+#: Hubs listed per side in the Markdown diagnostics.
+N_HUBS_SHOWN = 10
 _BOUND_RULE = re.compile(r"^(?P<name>[a-z0-9-]+)\s*>\s*(?P<bound>\d+)$")
 
 Edge = tuple[str, str]
@@ -218,6 +221,8 @@ def diff_bundles(a: Bundle, b: Bundle, top_k: int = 5, threshold: float = 0.1) -
         "weight_changes": weights,
         "forbidden": forbidden,
         "behaviour": behaviour,
+        # does E_aff discriminate? (affordant/saturated shares, hubs, margins), before and after
+        "diagnostics": {"a": bundle_diagnostics(a), "b": bundle_diagnostics(b)},
     }
     result["summary"] = _summary(result)
     return result
@@ -394,6 +399,42 @@ def _top_list(rows: list[Json]) -> str:
     return " ".join(f"{i}. {_code(r['object'])}" for i, r in enumerate(rows, start=1)) or "—"
 
 
+def _diagnostics_section(result: Json) -> list[str]:
+    """Before/after table of the discrimination diagnostics (absent in diffs made before them)."""
+    diag = result.get("diagnostics")
+    if not diag:
+        return []
+    a, b = diag["a"], diag["b"]
+    rows = []
+    for key, label, lower_better in HEADLINE:
+        va, vb = headline_value(a, key), headline_value(b, key)
+        if key == "properties_reaching_no_object":
+            cells = [f"{va:.0f}", f"{vb:.0f}", f"{vb - va:+.0f}"]
+        elif key.endswith("share"):
+            cells = [f"{100 * va:.1f} %", f"{100 * vb:.1f} %", f"{100 * (vb - va):+.1f}"]
+        else:
+            cells = [f"{va:.3f}", f"{vb:.3f}", f"{vb - va:+.3f}"]
+        better = "" if va == vb else " ✅" if (vb < va) == lower_better else " ⚠️"
+        rows.append([label, *cells[:2], cells[2] + better])
+    lines = [
+        "### Discrimination: does E_aff tell objects apart?",
+        "",
+        *_rows(["diagnostic", "before", "after", "Δ"], rows),
+        "",
+    ]
+    for side, d in (("before", a), ("after", b)):
+        hubs = ", ".join(
+            f"{_code(h['object'])} {100 * h['top_k_share']:.0f} %" for h in d["hubs"][:N_HUBS_SHOWN]
+        )
+        lines.append(f"- top-{d['top_k']} hubs {side}: {hubs or '—'}")
+    new_dead = sorted(
+        set(b["properties_reaching_no_object"]) - set(a["properties_reaching_no_object"])
+    )
+    if new_dead:
+        lines.append(f"- properties newly reaching no object: {_names(new_dead)}")
+    return [*lines, ""]
+
+
 def render_markdown(result: dict[str, Any]) -> str:
     """The diff as a Markdown PR comment: headline counts, then tables, long ones collapsed."""
     a, b, s = result["a"], result["b"], result["summary"]
@@ -431,6 +472,7 @@ def render_markdown(result: dict[str, Any]) -> str:
             "",
         ]
 
+    out += _diagnostics_section(result)
     changed = [r for r in result["behaviour"] if r["order_changed"] or r["entered"] or r["left"]]
     changed.sort(key=lambda r: (not r["top1_changed"], r["verb"]))  # flips first: review those
     out += [f"### Behaviour: top-{result['top_k']} objects by E_aff", ""]

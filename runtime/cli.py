@@ -154,7 +154,7 @@ def ground(
     gamma: Annotated[float, typer.Option(help="Weight of E_align.")] = 1.0,
     temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated).")] = None,
     aff_mode: Annotated[str, typer.Option(help="expected | argmax.")] = "expected",
-    energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product (default: the bundle's).")] = None,
+    energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product | specificity | required-veto | specificity-veto (default: the bundle's).")] = None,
     vocab: Annotated[Path | None, typer.Option(help="Scene object vocabulary file (one per line; default: the KB's objects).")] = None,
     open_vocab: Annotated[bool, typer.Option(help="Ground verbs the KB lacks via similar KB verbs.")] = False,
     image_encoder: Annotated[str, typer.Option(help="conse | clip-vit-b32 (needs --clip-weights/--clip-sha256).")] = "conse",
@@ -176,8 +176,10 @@ def ground(
         fail("give the ROIs either as --box x,y,w,h (repeatable) or as --rois FILE")
     if aff_mode not in ("expected", "argmax"):
         fail(f"--aff-mode {aff_mode!r}: use expected or argmax")
-    if energy_form not in (None, "sum-tanh", "normalized-product"):
-        fail(f"--energy-form {energy_form!r}: use sum-tanh or normalized-product")
+    from craft_e.runtime.energies import ENERGY_FORMS
+
+    if energy_form is not None and energy_form not in ENERGY_FORMS:
+        fail(f"--energy-form {energy_form!r}: use one of {', '.join(ENERGY_FORMS)}")
     try:
         specs = [RoiSpec(parse_box(b)) for b in box] if box else read_rois_file(rois) if rois else []
     except ValueError as exc:
@@ -252,7 +254,7 @@ def ground(
         grounder = Grounder(bundle, alpha=alpha, beta=beta, gamma=gamma,
                             temperature=DEFAULT_TEMPERATURE if temperature is None else temperature,
                             aff_mode=aff_mode,  # type: ignore[arg-type]
-                            energy_form=energy_form,  # type: ignore[arg-type]
+                            energy_form=energy_form,
                             vocabulary=vocabulary, open_vocab=open_vocab)
         result = grounder.ground(verb, roi_list)
     except UnknownVerbError as exc:
@@ -286,7 +288,7 @@ def eval_imagenet(
     kb_dir: Annotated[Path | None, typer.Option(help="Folder of the baseline bundles (conceptnet/, direct-llm/).")] = None,
     temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated).")] = None,
     aff_mode: Annotated[str, typer.Option(help="expected | argmax.")] = "expected",
-    energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product (default: each bundle's).")] = None,
+    energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product | specificity | required-veto | specificity-veto (default: each bundle's).")] = None,
     no_cache: Annotated[bool, typer.Option(help="Do not read or write the on-disk image-embedding cache.")] = False,
     threads: Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")] = None,
     classes: Annotated[Path | None, typer.Option(help="Only draw episodes from these classes (file, one per line); "
@@ -300,8 +302,10 @@ def eval_imagenet(
 
     if aff_mode not in ("expected", "argmax"):
         fail(f"--aff-mode {aff_mode!r}: use expected or argmax")
-    if energy_form not in (None, "sum-tanh", "normalized-product"):
-        fail(f"--energy-form {energy_form!r}: use sum-tanh or normalized-product")
+    from craft_e.runtime.energies import ENERGY_FORMS
+
+    if energy_form is not None and energy_form not in ENERGY_FORMS:
+        fail(f"--energy-form {energy_form!r}: use one of {', '.join(ENERGY_FORMS)}")
     pool = None
     if classes is not None:
         try:
@@ -316,7 +320,7 @@ def eval_imagenet(
             cache_dir=None if no_cache else ENCODER_CACHE_DIR,
             temperature=DEFAULT_TEMPERATURE if temperature is None else temperature,
             aff_mode=aff_mode,  # type: ignore[arg-type]
-            energy_form=energy_form,  # type: ignore[arg-type]
+            energy_form=energy_form,
             threads=threads,
         )
     except (LabelsError, FileNotFoundError) as exc:

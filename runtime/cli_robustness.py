@@ -44,7 +44,7 @@ def robustness_imagenet(
     threads: Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")] = None,
     temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated).")] = None,
     aff_mode: Annotated[str, typer.Option(help="expected | argmax.")] = "expected",
-    energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product (default: each bundle's).")] = None,
+    energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product | specificity | required-veto | specificity-veto (default: each bundle's).")] = None,
 ) -> None:
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
     from craft_e.paths import KB_DIR
@@ -60,8 +60,10 @@ def robustness_imagenet(
 
     if aff_mode not in ("expected", "argmax"):
         _fail(f"--aff-mode {aff_mode!r}: use expected or argmax")
-    if energy_form not in (None, "sum-tanh", "normalized-product"):
-        _fail(f"--energy-form {energy_form!r}: use sum-tanh or normalized-product")
+    from craft_e.runtime.energies import ENERGY_FORMS
+
+    if energy_form is not None and energy_form not in ENERGY_FORMS:
+        _fail(f"--energy-form {energy_form!r}: use one of {', '.join(ENERGY_FORMS)}")
     if temperature is not None and temperature <= 0:
         _fail(f"--temperature {temperature}: must be > 0")
     try:
@@ -80,7 +82,7 @@ def robustness_imagenet(
                                      cache_dir=None if no_cache else ENCODER_CACHE_DIR, threads=threads,
                                      temperature=DEFAULT_TEMPERATURE if temperature is None else temperature,
                                      aff_mode=aff_mode,  # type: ignore[arg-type]
-                                     energy_form=energy_form)  # type: ignore[arg-type]
+                                     energy_form=energy_form)
     except (LabelsError, FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,

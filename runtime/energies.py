@@ -1,33 +1,92 @@
 """The paper's energies (eq. 1-5). Lower is better; alpha = beta = gamma = 1 by default.
 
-``E_aff`` has two forms. The paper writes ``tanh(-sum_p w_vp + w_po)`` with ambiguous brackets;
-our default reading is ``tanh(-sum_{p in P_v(o)} (w_vp + w_po))`` where ``P_v(o)`` are the
-properties linking v to o with ``w_po >= tau``. The option ``normalized-product`` is
-``-sum_p w_vp * w_po / sum_p w_vp`` over v's properties, in [-1, 0], which does not reward an
-object merely for sharing many weak properties.
+``E_aff(v, o)`` comes in several forms, all computed from ``w_vp [V, P]``, ``w_po [P, O]`` and
+the threshold ``tau`` (``P_v(o)`` = properties of v with ``w_po >= tau``):
+
+* ``sum-tanh`` (the paper, our reading of its ambiguous brackets):
+  ``tanh(-sum_{p in P_v(o)} (w_vp + w_po))``. It saturates: an object that shares three or four
+  properties with the verb sits at -1, so it stops separating objects. Kept selectable and
+  reported in every table.
+* ``normalized-product``: ``-sum_p w_vp * w_po / sum_p w_vp`` over v's properties, in [-1, 0];
+  an object is rewarded for the verb's *weight* it covers, not for the count of weak matches.
+* ``specificity``: the normalized product with each property's w_vp scaled by an IDF-like
+  factor ``s_p = log(O / df_p) / log(O)`` in [0, 1], ``df_p`` = objects with ``w_po >= tau``
+  among the bundle's ``O`` objects. A property most objects have ("has a handle", "fits in one
+  hand") says little about *which* object affords a verb, so it gets little weight; one only a
+  few objects have gets nearly its full weight. A property no object has gets ``s_p = 1`` (it
+  still counts in the denominator, as in the normalized product: the verb's knowledge that no
+  object covers is not silently dropped).
+* ``required-veto``: the normalized product, but an object lacking any of the verb's
+  *required* properties (role ``required`` in the KB: without it the action fails) gets
+  ``E_aff = 0`` — not affordant, whatever else it shares. A verb with no required property
+  (every v1 bundle) falls back to the normalized product.
+* ``specificity-veto``: ``specificity`` with the same veto.
+
+Roles reach these functions as a boolean ``required [V, P]`` matrix (``None``: no roles known,
+so the veto forms equal their base forms).
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
 
-EnergyForm = Literal["sum-tanh", "normalized-product"]
+EnergyForm = Literal[
+    "sum-tanh", "normalized-product", "specificity", "required-veto", "specificity-veto"
+]
+#: Every form, in table order (the paper's first).
+ENERGY_FORMS: tuple[EnergyForm, ...] = get_args(EnergyForm)
 FloatArray = npt.NDArray[np.float32]
+BoolArray = npt.NDArray[np.bool_]
 DEFAULT_TAU = 0.5
 FORBIDDEN_ENERGY = 1.0  # "never pick X for V": the worst possible E_aff (as the compiler writes it)
 
 
+def check_energy_form(form: str) -> EnergyForm:
+    """``form`` as an :data:`EnergyForm`, or ``ValueError`` listing the valid ones."""
+    if form not in ENERGY_FORMS:
+        raise ValueError(f"unknown E_aff form {form!r}; use one of {', '.join(ENERGY_FORMS)}")
+    return form
+
+
+def property_specificity(w_po: FloatArray, *, tau: float = DEFAULT_TAU) -> npt.NDArray[np.float64]:
+    """``[P]`` specificity ``log(O / df_p) / log(O)`` in [0, 1] (``df_p`` = objects linked to p).
+
+    1 for a property of a single object (or of none), 0 for one every object has. With one
+    object there is nothing to tell apart: every property gets 1.
+    """
+    n_obj = w_po.shape[1]
+    df = ((w_po >= tau) & (w_po > 0)).sum(axis=1).astype(np.float64)  # [P]
+    if n_obj <= 1:
+        return np.ones(w_po.shape[0], dtype=np.float64)
+    spec: npt.NDArray[np.float64] = np.log(n_obj / np.maximum(df, 1.0)) / np.log(n_obj)  # [P]
+    out: npt.NDArray[np.float64] = np.clip(spec, 0.0, 1.0)
+    return out
+
+
+def _normalized_product(w_vp64: npt.NDArray[np.float64], w_po_linked: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    norm = np.maximum(w_vp64.sum(axis=1, keepdims=True), 1e-12)  # [V, 1]
+    out: npt.NDArray[np.float64] = -(w_vp64 @ w_po_linked) / norm  # [V, O]
+    return out
+
+
 def affordance_energy_matrix(
-    w_vp: FloatArray, w_po: FloatArray, *, tau: float = DEFAULT_TAU, form: EnergyForm = "sum-tanh"
+    w_vp: FloatArray,
+    w_po: FloatArray,
+    *,
+    tau: float = DEFAULT_TAU,
+    form: EnergyForm = "sum-tanh",
+    required: BoolArray | None = None,
 ) -> FloatArray:
-    """E_aff for every verb x object pair.
+    """E_aff for every verb x object pair (the forms are in the module docstring).
 
     ``w_vp``: ``[V, P]`` verb->property weights (0 = no edge); ``w_po``: ``[P, O]``
-    property->object weights (0 = no edge). Returns ``[V, O]`` float32.
+    property->object weights (0 = no edge); ``required``: ``[V, P]`` True where the verb's
+    property has role ``required`` (only the veto forms read it). Returns ``[V, O]`` float32.
     """
+    check_energy_form(form)
     w_vp64 = w_vp.astype(np.float64)
     link = (w_po >= tau) & (w_po > 0)  # [P, O] edges that count
     w_po_linked = np.where(link, w_po, 0.0).astype(np.float64)  # [P, O]
@@ -36,11 +95,18 @@ def affordance_energy_matrix(
         total = w_vp64 @ link.astype(np.float64) + has_vp @ w_po_linked  # [V, O]
         result: FloatArray = np.tanh(-total).astype(np.float32)
         return result
-    if form == "normalized-product":
-        norm = np.maximum(w_vp64.sum(axis=1, keepdims=True), 1e-12)  # [V, 1]
-        normalized: FloatArray = (-(w_vp64 @ w_po_linked) / norm).astype(np.float32)
-        return normalized
-    raise ValueError(f"unknown E_aff form {form!r}; use 'sum-tanh' or 'normalized-product'")
+    if form in ("specificity", "specificity-veto"):
+        w_vp64 = w_vp64 * property_specificity(w_po, tau=tau)[None, :]  # [V, P]
+    energy = _normalized_product(w_vp64, w_po_linked)  # [V, O]
+    if form in ("required-veto", "specificity-veto") and required is not None:
+        if required.shape != w_vp.shape:
+            raise ValueError(f"required must be {w_vp.shape} like w_vp, got {required.shape}")
+        req = (required & (w_vp > 0)).astype(np.float64)  # [V, P] only the verb's own properties
+        # missing[v, o] = number of v's required properties that o lacks
+        missing = req @ (~link).astype(np.float64)  # [V, O]
+        energy = np.where(missing > 0, 0.0, energy)
+    out: FloatArray = energy.astype(np.float32)
+    return out
 
 
 def grasp_energy(scores: npt.NDArray[np.floating] | list[float]) -> float:
@@ -77,6 +143,25 @@ def weight_matrices_from_graph(
         elif src in p_index and dst in o_index:
             w_po[p_index[src], o_index[dst]] = weight
     return w_vp, w_po
+
+
+def required_matrix_from_graph(
+    graph: dict[str, Any], verbs: list[str], properties: list[str]
+) -> BoolArray:
+    """``required [V, P]``: True where a verb -> property edge has ``role: "required"``.
+
+    v2 KBs mark each of a verb's properties *required* (without it the action fails) or
+    *helpful*; v1 bundles have no ``role`` attribute, read as helpful (all False), so the veto
+    forms reduce to their base forms on them.
+    """
+    v_index = {f"verb:{v}": i for i, v in enumerate(verbs)}
+    p_index = {f"prop:{p}": i for i, p in enumerate(properties)}
+    required = np.zeros((len(verbs), len(properties)), dtype=bool)  # [V, P]
+    for edge in graph.get("edges", []):
+        src, dst = edge["source"], edge["target"]
+        if src in v_index and dst in p_index and edge.get("role") == "required":
+            required[v_index[src], p_index[dst]] = True
+    return required
 
 
 def forbidden_pairs(graph: dict[str, Any]) -> list[tuple[str, str]]:

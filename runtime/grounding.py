@@ -33,8 +33,10 @@ from craft_e.runtime.energies import (
     FORBIDDEN_ENERGY,
     EnergyForm,
     affordance_energy_matrix,
+    check_energy_form,
     forbidden_pairs,
     object_hypotheses,
+    required_matrix_from_graph,
     weight_matrices_from_graph,
 )
 
@@ -251,12 +253,15 @@ def normalize_verb_name(raw: str) -> str:
 
 
 def affordance_energy_in_form(bundle: Bundle, form: EnergyForm) -> FloatArray:
-    """``[V, O]`` E_aff in ``form``: the bundle's own ``.npy``, or recomputed from its graph."""
+    """``[V, O]`` E_aff in ``form``: the bundle's own ``.npy``, or recomputed from its graph
+    (with the verb -> property roles, which only the veto forms read)."""
     m = bundle.manifest
+    check_energy_form(form)
     if form == m.energy.form:
         return bundle.energy
     w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
-    energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form)  # [V, O]
+    required = required_matrix_from_graph(bundle.graph, m.verbs, m.properties)  # [V, P]
+    energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form, required=required)
     for v, o in forbidden_pairs(bundle.graph):
         if v in bundle.verb_index and o in bundle.object_index:
             energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
@@ -265,11 +270,11 @@ def affordance_energy_in_form(bundle: Bundle, form: EnergyForm) -> FloatArray:
 class Grounder:
     """Scores ROIs against verbs with one bundle; construct once, call ``ground`` per request.
 
-    ``energy_form`` ``None`` uses the form the bundle was built with (its ``.npy``); the other
-    form is recomputed from the graph's edges once. ``vocabulary`` is the scene's object
-    vocabulary for ``p(o | r)`` (default: every bundle object); names the bundle does not know
-    are embedded with the text encoder and get ``E_aff = 0`` (no path, the neutral value of both
-    forms), listed in ``objects_without_knowledge``. ``open_vocab`` lets unknown verbs borrow
+    ``energy_form`` ``None`` uses the form the bundle was built with (its ``.npy``); any other
+    form (``energies.ENERGY_FORMS``) is recomputed from the graph's edges once. ``vocabulary``
+    is the scene's object vocabulary for ``p(o | r)`` (default: every bundle object); names the bundle does not know
+    are embedded with the text encoder and get ``E_aff = 0`` (no path, the neutral value of every
+    form), listed in ``objects_without_knowledge``. ``open_vocab`` lets unknown verbs borrow
     the E_aff rows of the KB verbs most similar in embedding space.
 
     Latency: ``ground`` is a handful of small matrix products. With OpenBLAS threads contending
@@ -297,9 +302,7 @@ class Grounder:
         if temperature <= 0:
             raise ValueError(f"temperature must be > 0, got {temperature}")
         m = bundle.manifest
-        form: EnergyForm = energy_form or m.energy.form
-        if form not in ("sum-tanh", "normalized-product"):
-            raise ValueError(f"energy_form must be 'sum-tanh' or 'normalized-product', got {form!r}")
+        form: EnergyForm = check_energy_form(energy_form or m.energy.form)
         self.bundle = bundle
         self.alpha, self.beta, self.gamma = float(alpha), float(beta), float(gamma)
         self.temperature = float(temperature)

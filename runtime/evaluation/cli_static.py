@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, Annotated, cast
 import typer
 
 if TYPE_CHECKING:
-    from craft_e.runtime.energies import EnergyForm
     from craft_e.runtime.grounding import AffMode
 
 DEFAULT_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
@@ -36,7 +35,7 @@ def register(app: typer.Typer) -> None:
         max_pairs: Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")] = None,
         seed: Annotated[int, typer.Option(help="Seed of target/distractor/layout sampling and noise.")] = 0,
         threads: Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")] = 1,
-        energy_form: Annotated[str | None, typer.Option(help="E_aff form: sum-tanh | normalized-product "
+        energy_form: Annotated[str | None, typer.Option(help="E_aff form: sum-tanh | normalized-product | specificity | required-veto | specificity-veto "
                                                             "(default: each bundle's).")] = None,
         aff_mode: Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")] = "expected",
     ) -> None:
@@ -56,8 +55,10 @@ def register(app: typer.Typer) -> None:
             specs = select_methods(split_names(methods), kb, kb_dir or KB_DIR)
         except ValueError as exc:
             fail(str(exc))
-        if energy_form not in (None, "sum-tanh", "normalized-product"):
-            fail(f"--energy-form {energy_form!r}: use sum-tanh or normalized-product")
+        from craft_e.runtime.energies import ENERGY_FORMS
+
+        if energy_form is not None and energy_form not in ENERGY_FORMS:
+            fail(f"--energy-form {energy_form!r}: use one of {', '.join(ENERGY_FORMS)}")
         if aff_mode not in ("expected", "argmax"):
             fail(f"--aff-mode {aff_mode!r}: use expected or argmax")
         start = time.perf_counter()
@@ -66,7 +67,7 @@ def register(app: typer.Typer) -> None:
                 report = evaluate_static(labels_path, backends=split_names(grasp) or ["grconvnet"],
                                          layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
                                          noise=levels, threads=threads,
-                                         energy_form=cast("EnergyForm | None", energy_form),
+                                         energy_form=energy_form,
                                          aff_mode=cast("AffMode", aff_mode), progress=bar)
         except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError,
                 ValueError, RuntimeError) as exc:

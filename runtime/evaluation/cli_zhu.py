@@ -31,9 +31,10 @@ def register(app: typer.Typer) -> None:
             Path | None, typer.Option("--json", help="Write per-affordance AP as JSON.")
         ] = None,
     ) -> None:
-        """Per affordance, AP of ranking the dev objects by E_aff — both E_aff forms per bundle."""
+        """Per affordance, AP of ranking the dev objects by E_aff — every E_aff form per bundle."""
         from craft_e.runtime.bundle import BundleError, load_bundle
         from craft_e.runtime.cli import fail
+        from craft_e.runtime.energies import ENERGY_FORMS
         from craft_e.runtime.evaluation.zhu import (
             chance_ap,
             evaluate_bundle,
@@ -55,10 +56,8 @@ def register(app: typer.Typer) -> None:
             if name == "direct-llm":  # one pseudo-property per verb: both forms rank alike
                 columns[name] = evaluate_bundle(bundle, data)
                 continue
-            columns[f"{name} (sum-tanh)"] = evaluate_bundle(bundle, data, "sum-tanh")
-            columns[f"{name} (normalized-product)"] = evaluate_bundle(
-                bundle, data, "normalized-product"
-            )
+            for form in ENERGY_FORMS:
+                columns[f"{name} ({form})"] = evaluate_bundle(bundle, data, form)
         table = markdown_table(columns)
         typer.echo(table)
         if markdown is not None:

@@ -62,7 +62,9 @@ class TextEncoderInfo(_Frozen):
 class EnergyInfo(_Frozen):
     """How ``affordance_energy.npy`` was computed."""
 
-    form: Literal["sum-tanh", "normalized-product"] = "sum-tanh"
+    form: Literal[
+        "sum-tanh", "normalized-product", "specificity", "required-veto", "specificity-veto"
+    ] = Field("sum-tanh", description="E_aff form (craft_e.runtime.energies.EnergyForm)")
     tau: float = Field(ge=0.0, le=1.0, description="w_po threshold for an edge to count")
 
 
@@ -118,6 +120,27 @@ class Coverage(_Frozen):
     verbs_reaching_no_object: list[str]
 
 
+class Hub(_Frozen):
+    object: str
+    top_k_share: float = Field(ge=0.0, le=1.0, description="share of verbs with it in their top k")
+
+
+class Diagnostics(_Frozen):
+    """Does E_aff discriminate? (``craft_e.runtime.kb_diagnostics``; issue 9.)"""
+
+    affordant_share: float = Field(ge=0.0, le=1.0, description="verb x object cells with E_aff < 0")
+    saturated_share: float = Field(ge=0.0, le=1.0, description="cells with E_aff <= -0.99")
+    top_k: int = Field(ge=1, description="k of the top-k lists behind the hub shares")
+    hubs: list[Hub] = Field(description="objects in the most verbs' top k, biggest first")
+    max_hub_share: float = Field(ge=0.0, le=1.0)
+    properties_reaching_no_object: list[str]
+    margin_rank: int = Field(ge=1, description="margins compare the best object with this rank")
+    margin_median: float
+    margins: dict[str, float] = Field(
+        description="per verb: E_aff of its margin_rank-th object minus that of its best"
+    )
+
+
 class BundleReport(_Frozen):
     schema_id: Literal["https://craft-e.dev/schemas/v1/report.json"] = (
         "https://craft-e.dev/schemas/v1/report.json"
@@ -129,6 +152,9 @@ class BundleReport(_Frozen):
     )
     drops: list[DropRecord]
     coverage: Coverage
+    diagnostics: Diagnostics | None = Field(
+        None, description="discrimination diagnostics of the bundle's E_aff (absent before v1.1)"
+    )
 
 
 class BuildInfo(BaseModel):

@@ -1,0 +1,58 @@
+"""``craftc diagnose BUNDLE``: discrimination diagnostics of any bundle, in one or every E_aff form.
+
+The same numbers as ``report.json``'s ``diagnostics`` (``craft_e.runtime.kb_diagnostics``), but
+computed from the bundle's graph, so they work on bundles built before the report carried them
+and for E_aff forms other than the one the bundle was built with.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def diagnose(
+        bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
+        energy_form: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--energy-form",
+                help="E_aff form(s) to diagnose (repeatable; 'all' = every form; default: the "
+                "bundle's own).",
+            ),
+        ] = None,
+        format: Annotated[str, typer.Option("--format", help="md | json")] = "md",
+    ) -> None:
+        """Affordant and saturated shares, hub objects, dead properties, per-verb margins."""
+        from craft_e.compiler.cli import fail
+        from craft_e.runtime.bundle import BundleError, load_bundle
+        from craft_e.runtime.energies import ENERGY_FORMS, check_energy_form
+        from craft_e.runtime.grounding import affordance_energy_in_form
+        from craft_e.runtime.kb_diagnostics import bundle_diagnostics, markdown_summary
+
+        if format not in ("md", "json"):
+            fail(f"unknown format {format!r}; use md or json")
+        try:
+            kb = load_bundle(bundle, check_encoder=False)
+            forms = [kb.manifest.energy.form] if not energy_form else (
+                list(ENERGY_FORMS) if "all" in energy_form
+                else [check_energy_form(f) for f in energy_form]
+            )
+        except (BundleError, ValueError) as exc:
+            fail(str(exc))
+        columns = {
+            form: bundle_diagnostics(kb, affordance_energy_in_form(kb, form)) for form in forms
+        }
+        if format == "json":
+            data = {"kb_name": kb.manifest.kb_name, "content_sha256": kb.manifest.content_sha256,
+                    "forms": columns}
+            sys.stdout.write(json.dumps(data, indent=1, sort_keys=True) + "\n")
+            return
+        sys.stdout.write(f"## Discrimination diagnostics of `{kb.manifest.kb_name}` "
+                         f"{kb.manifest.kb_version}\n\n" + markdown_summary(columns))
