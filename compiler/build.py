@@ -31,6 +31,7 @@ from craft_e.compiler.embed import EmbeddingCache
 from craft_e.compiler.emit import check_out_path, file_digest, write_bundle
 from craft_e.compiler.graph import build_graph, check_draft, coverage, graph_json, weight_matrices
 from craft_e.compiler.llm_knowledge import direct_llm_draft, llm_property_draft
+from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION
 from craft_e.compiler.rdf import graph_turtle
 from craft_e.compiler.sources.llm import LLMSource, Transport
 from craft_e.compiler.vocab import Vocabulary, read_vocabulary
@@ -72,6 +73,7 @@ class BuildConfig(BaseModel):
     energy_form: EnergyForm = "sum-tanh"
     encoder_id: str = MINILM_ID
     force: bool = False
+    prompt_version: Literal["v1", "v2"] = DEFAULT_PROMPT_VERSION
 
 
 @dataclass
@@ -103,9 +105,14 @@ def _source_pass(
     source = LLMSource(
         cache=cache, provider=config.provider, model=config.model, transport=transport
     )
+    version, glosses = config.prompt_version, objects.glosses
     if config.mode == "direct":
-        return direct_llm_draft(source, verbs.names, objects.names, progress)
-    return llm_property_draft(source, verbs.names, objects.names, progress)
+        return direct_llm_draft(
+            source, verbs.names, objects.names, progress, version=version, glosses=glosses
+        )
+    return llm_property_draft(
+        source, verbs.names, objects.names, progress, version=version, glosses=glosses
+    )
 
 
 def _overrides_pass(config: BuildConfig, draft: KnowledgeDraft) -> None:

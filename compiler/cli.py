@@ -11,10 +11,11 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Literal, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -24,6 +25,7 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
 from craft_e.paths import CACHE_DIR, VOCAB_DIR
 
 app = typer.Typer(
@@ -48,8 +50,27 @@ PROVIDERS = ("replay", "openai", "gemini")
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    # User text (paths, names, messages quoting input) is printed literally, never as markup:
+    # "[/x]" in a path must neither raise MarkupError nor lose its brackets.
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+PromptsOpt = Annotated[
+    str,
+    typer.Option(
+        "--prompts",
+        help="Prompt version: v2 (discriminating, defined properties; glossed objects) | v1.",
+    ),
+]
+
+
+def _prompt_version(version: str) -> Literal["v1", "v2"]:
+    if version == "v1":
+        return "v1"
+    if version == "v2":
+        return "v2"
+    fail(f"unknown prompt version {version!r}; choose one of {', '.join(PROMPT_VERSIONS)}")
 
 
 CacheOpt = Annotated[
@@ -109,12 +130,20 @@ def build(
     ] = "sum-tanh",
     cache: CacheOpt = CACHE_DIR,
     quiet: Annotated[bool, typer.Option(help="No progress bars.")] = False,
+    force: Annotated[
+        bool,
+        typer.Option(
+            help="Replace an existing bundle of another kb name at --out (never anything that is not a bundle)."
+        ),
+    ] = False,
+    prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
 ) -> None:
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
     from pydantic import ValidationError
 
     from craft_e.compiler.build import BuildConfig
     from craft_e.compiler.build import build as run_build
+    from craft_e.compiler.cache import CacheError
     from craft_e.compiler.sources.llm import SourceError
     from craft_e.compiler.vocab import VocabError
 
@@ -148,6 +177,8 @@ def build(
             conceptnet=conceptnet,
             tau=(0.0 if mode == "direct" else 0.5) if tau is None else tau,
             energy_form=energy_form,
+            force=force,
+            prompt_version=_prompt_version(prompts),
         )
     except ValidationError as exc:
         fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
@@ -167,11 +198,20 @@ def build(
         fail(str(exc), EXIT_SOURCE_FAILED)
     except ValueError as exc:  # overrides and other input errors name their file and line
         fail(str(exc))
+    except CacheError as exc:  # a damaged record or embedding is a bad input file
+        fail(f"{exc} (`craftc cache verify` lists every damaged file)")
+    except OSError as exc:  # read-only or full --out, a concurrent build replacing --out
+        where = f" {exc.filename}" if exc.filename else ""
+        fail(
+            f"cannot write the bundle --out {config.out}:{where} {exc.strerror or exc}; "
+            "check that the folder is writable and has free space (a build racing another "
+            "build to the same --out: retry); nothing half-written was left at --out"
+        )
     for note in result.notes:
-        err.print(f"[yellow]note:[/] {note}", highlight=False)
+        err.print(f"[yellow]note:[/] {escape(note)}", highlight=False)
     m = result.manifest
     stdout.print(
-        f"built [bold]{m.kb_name}[/] {m.kb_version} -> {result.out}\n"
+        f"built [bold]{escape(m.kb_name)}[/] {m.kb_version} -> {escape(str(result.out))}\n"
         f"  content sha256 {m.content_sha256}\n"
         f"  {len(m.verbs)} verbs, {len(m.properties)} properties, {len(m.objects)} objects; "
         f"embeddings {result.embedding_hits} cached / {result.embedding_misses} computed; "
@@ -201,7 +241,8 @@ def validate(bundle: Annotated[Path, typer.Argument(help="Bundle folder.")]) -> 
     except BundleError as exc:
         fail(str(exc), EXIT_CHECK_FAILED)
     stdout.print(
-        f"ok: {kb.manifest.kb_name} {kb.manifest.kb_version} content sha256 {kb.manifest.content_sha256}"
+        f"ok: {kb.manifest.kb_name} {kb.manifest.kb_version} content sha256 {kb.manifest.content_sha256}",
+        highlight=False,
     )
 
 
@@ -245,7 +286,7 @@ def diff(
     else:
         sys.stdout.write(render_markdown(result))
     for failure in failures:
-        err.print(f"[bold red]gate failed:[/] {failure}", highlight=False)
+        err.print(f"[bold red]gate failed:[/] {escape(failure)}", highlight=False)
     if failures:
         raise typer.Exit(EXIT_CHECK_FAILED)
 
@@ -300,28 +341,70 @@ def schema(
 
     if write:
         for path in write_all():
-            stdout.print(f"wrote {path}")
+            stdout.print(f"wrote {escape(str(path))}", highlight=False)
         return
     sys.stdout.write(
         json.dumps({k: v for k, v in generate_all().items()}, indent=2, sort_keys=True) + "\n"
     )
-    err.print(f"(committed copies live in {SCHEMA_DIR})")
+    err.print(f"(committed copies live in {escape(str(SCHEMA_DIR))})", highlight=False)
 
 
 @cache_app.command("verify")
 def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
     """Re-hash every record; report corrupt and orphaned files (exit 1 if any)."""
-    from craft_e.compiler.cache import RecordCache
+    from craft_e.compiler.cache import CacheError, RecordCache
 
-    report = RecordCache(cache).verify()
+    try:
+        report = RecordCache(cache).verify()
+    except (CacheError, OSError) as exc:
+        fail(str(exc), EXIT_CHECK_FAILED)
     for _path, why in report.corrupt:
-        err.print(f"[red]corrupt:[/] {why}", highlight=False)
+        err.print(f"[red]corrupt:[/] {escape(why)}", highlight=False)
     for path in report.orphaned:
-        err.print(f"[yellow]orphaned:[/] {path}", highlight=False)
+        err.print(f"[yellow]orphaned:[/] {escape(str(path))}", highlight=False)
+    for path in report.unindexed:
+        err.print(
+            f"[red]unindexed:[/] {escape(str(path))} (not in SHA256SUMS; check it, then run "
+            "`craftc cache index`)",
+            highlight=False,
+        )
+    if report.embeddings_unindexed:
+        err.print(
+            f"[yellow]note:[/] {len(report.embeddings_unindexed)} cached embeddings are not in "
+            "their INDEX.tsv (an older cache); builds re-embed them instead of trusting them",
+            highlight=False,
+        )
+    unindexed = f", {len(report.unindexed)} unindexed" if report.unindexed else ""
     stdout.print(
-        f"checked {report.checked} records: {len(report.corrupt)} corrupt, {len(report.orphaned)} orphaned"
+        f"checked {report.checked} records: {len(report.corrupt)} corrupt, "
+        f"{len(report.orphaned)} orphaned{unindexed}; {report.embeddings_checked} embeddings",
+        highlight=False,
     )
     if not report.ok:
+        raise typer.Exit(EXIT_CHECK_FAILED)
+
+
+@cache_app.command("index")
+def cache_index(cache: CacheOpt = CACHE_DIR) -> None:
+    """Add records missing from each source's SHA256SUMS (never changes an existing entry)."""
+    from craft_e.compiler.cache import CacheError, RecordCache
+
+    store = RecordCache(cache)
+    bad = 0
+    try:
+        for source in store.sources():
+            added, pruned, mismatched = store.build_index(source)
+            for path, why in mismatched:
+                err.print(f"[red]not indexed:[/] {escape(str(path))}: {escape(why)}", highlight=False)
+            bad += len(mismatched)
+            stdout.print(
+                f"{source}: {len(added)} added, {len(pruned)} entries of deleted files dropped, "
+                f"{len(mismatched)} left out",
+                highlight=False,
+            )
+    except (CacheError, OSError) as exc:
+        fail(str(exc), EXIT_BAD_INPUT)
+    if bad:
         raise typer.Exit(EXIT_CHECK_FAILED)
 
 
@@ -342,6 +425,7 @@ def curate_record(
     ] = VOCAB_DIR / "union_verbs.txt",
     objects: Annotated[Path, typer.Option(help="Objects file.")] = VOCAB_DIR / "union_objects.txt",
     cache: CacheOpt = CACHE_DIR,
+    prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
 ) -> None:
     """Store written answers as provider-'curated' records of their rendered prompts."""
     from craft_e.compiler.cache import RecordCache
@@ -351,14 +435,22 @@ def curate_record(
 
     try:
         v = read_vocabulary(verbs, kind="verbs").names
-        o = read_vocabulary(objects, kind="objects").names
-        result = record_answers(LLMSource(RecordCache(cache)), prompt, answers, v, o)
+        ov = read_vocabulary(objects, kind="objects")
+        result = record_answers(
+            LLMSource(RecordCache(cache)),
+            prompt,
+            answers,
+            v,
+            ov.names,
+            version=_prompt_version(prompts),
+            glosses=ov.glosses,
+        )
     except (CurationError, VocabError) as exc:
         fail(str(exc))
     except SourceError as exc:
         fail(str(exc), EXIT_SOURCE_FAILED)
     for line in result.skipped:
-        err.print(f"[yellow]skipped:[/] {line}", highlight=False)
+        err.print(f"[yellow]skipped:[/] {escape(line)}", highlight=False)
     stdout.print(
         f"stored {result.stored} records, {result.unchanged} unchanged, {len(result.skipped)} skipped"
     )
@@ -369,8 +461,10 @@ def curate_pending(
     verbs: Annotated[Path, typer.Option(help="Verbs file.")] = VOCAB_DIR / "union_verbs.txt",
     objects: Annotated[Path, typer.Option(help="Objects file.")] = VOCAB_DIR / "union_objects.txt",
     cache: CacheOpt = CACHE_DIR,
+    prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
 ) -> None:
-    """List object prompts with no answer yet (object + the named property set), as JSON."""
+    """List object prompts with no answer yet (object, gloss, named property set, rendered
+    prompt), as JSON."""
     from craft_e.compiler.cache import RecordCache
     from craft_e.compiler.curate import pending_object_requests
     from craft_e.compiler.sources.llm import LLMSource, SourceError
@@ -378,8 +472,14 @@ def curate_pending(
 
     try:
         v = read_vocabulary(verbs, kind="verbs").names
-        o = read_vocabulary(objects, kind="objects").names
-        pending = pending_object_requests(LLMSource(RecordCache(cache)), v, o)
+        ov = read_vocabulary(objects, kind="objects")
+        pending = pending_object_requests(
+            LLMSource(RecordCache(cache)),
+            v,
+            ov.names,
+            version=_prompt_version(prompts),
+            glosses=ov.glosses,
+        )
     except VocabError as exc:
         fail(str(exc))
     except SourceError as exc:

@@ -15,10 +15,21 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from craft_e.compiler.llm_knowledge import direct_call, plan_object_calls, verb_call
+from craft_e.compiler.llm_knowledge import (
+    direct_call,
+    plan_object_calls,
+    read_verb_properties,
+    verb_call,
+)
+from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
 from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
-from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from craft_e.schemas.v1.payloads import (
+    ObjectProperties,
+    VerbObjects,
+    VerbProperties,
+    VerbPropertiesV2,
+)
 from craft_e.schemas.v1.records import Record
 
 
@@ -81,24 +92,38 @@ def record_answers(
     verbs: list[str],
     objects: list[str],
     note: str = "written by a CRAFT-E curator for this rendered prompt",
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
 ) -> CurationResult:
     """Validate each answer in ``answers`` (JSONL) and store it as the record of its prompt."""
     result = CurationResult(0, 0, [])
     pending: dict[str, PromptCall] = {}
     if prompt_id == "object_properties":
-        properties = _stage1_properties(source, verbs)
-        _, calls = plan_object_calls(source, objects, properties)
+        properties, definitions = _stage1_properties(source, verbs, version)
+        _, calls = plan_object_calls(
+            source, objects, properties, version=version, glosses=glosses, definitions=definitions
+        )
         pending = {c.subject: c for c in calls}
     for lineno, row in _read_answers(answers):
         where = f"{answers}:{lineno}"
         try:
-            if prompt_id == "verb_properties":
+            if prompt_id == "verb_properties" and version == "v1":
                 vp = VerbProperties.model_validate(row)
                 payload = vp.model_dump(mode="json")
-                call = verb_call(normalize_verb(vp.verb))
+                call = verb_call(normalize_verb(vp.verb), version=version)
                 if len(vp.properties) != call.variables["k"]:
                     raise CurationError(
                         f"{where}: {vp.verb!r} has {len(vp.properties)} properties, the prompt asks for {call.variables['k']}"
+                    )
+            elif prompt_id == "verb_properties":
+                vp2 = VerbPropertiesV2.model_validate(row)
+                payload = vp2.model_dump(mode="json")
+                call = verb_call(normalize_verb(vp2.verb), version=version)
+                if not 3 <= len(vp2.properties) <= call.variables["k"]:
+                    raise CurationError(
+                        f"{where}: {vp2.verb!r} has {len(vp2.properties)} properties, the prompt "
+                        f"asks for 3 to {call.variables['k']}"
                     )
             elif prompt_id == "object_properties":
                 op = ObjectProperties.model_validate(row)
@@ -121,7 +146,9 @@ def record_answers(
             elif prompt_id == "verb_objects":
                 vo = VerbObjects.model_validate(row)
                 payload = vo.model_dump(mode="json")
-                call = direct_call(normalize_verb(vo.verb), objects)
+                call = direct_call(
+                    normalize_verb(vo.verb), objects, version=version, glosses=glosses
+                )
                 offered = set(objects)
                 outside = [r.object for r in vo.ranking if normalize_name(r.object) not in offered]
                 if outside:
@@ -146,27 +173,43 @@ def record_answers(
     return result
 
 
-def _stage1_properties(source: LLMSource, verbs: list[str]) -> list[str]:
+def _stage1_properties(
+    source: LLMSource, verbs: list[str], version: str
+) -> tuple[list[str], dict[str, str]]:
+    """The stage-1 property names of ``verbs`` and (v2) their definitions, first one kept."""
     props: set[str] = set()
+    definitions: dict[str, str] = {}
     for verb in verbs:
-        record = source.fetch(verb_call(verb))
-        props.update(
-            normalize_property(p.name)
-            for p in VerbProperties.model_validate(record.payload).properties
-        )
-    return sorted(props)
+        record = source.fetch(verb_call(verb, version=version))
+        for name, _, definition, _ in read_verb_properties(record, version):
+            prop = normalize_property(name)
+            props.add(prop)
+            if definition:
+                definitions.setdefault(prop, definition)
+    return sorted(props), definitions
 
 
 def pending_object_requests(
-    source: LLMSource, verbs: list[str], objects: list[str]
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
 ) -> list[dict[str, object]]:
-    """What a curator still has to answer: object + the named property set to score."""
-    _, calls = plan_object_calls(source, objects, _stage1_properties(source, verbs))
+    """What a curator still has to answer: object (+ gloss) + the named property set to score,
+    and the exact rendered user message the answer replies to."""
+    properties, definitions = _stage1_properties(source, verbs, version)
+    _, calls = plan_object_calls(
+        source, objects, properties, version=version, glosses=glosses, definitions=definitions
+    )
     return [
         {
             "object": c.subject,
+            "gloss": c.variables.get("gloss", ""),
             "property_set_id": c.variables["property_set_id"],
             "properties": c.variables["properties"],
+            "prompt": c.template.render(**c.variables)[1].content,
         }
         for c in calls
     ]

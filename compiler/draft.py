@@ -20,6 +20,7 @@ class Link:
     weight: float
     provenance: tuple[str, ...]
     relation: str = "llm"
+    role: str = ""  # verb -> property (prompt v2): "required" | "helpful"; "" = not given
 
 
 @dataclass
@@ -30,6 +31,8 @@ class KnowledgeDraft:
     prop_objs: dict[str, dict[str, Link]] = field(default_factory=dict)  # prop -> obj -> w_po
     forbidden: set[tuple[str, str]] = field(default_factory=set)  # (verb, object) never picked
     sources: list[SourceInfo] = field(default_factory=list)
+    definitions: dict[str, str] = field(default_factory=dict)  # property -> one-line sense
+    glosses: dict[str, str] = field(default_factory=dict)  # object -> sense it was asked in
     drops: list[DropRecord] = field(default_factory=list)
     counters: dict[str, Counter[str]] = field(default_factory=dict)
 

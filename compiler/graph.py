@@ -51,8 +51,12 @@ def build_graph(draft: KnowledgeDraft) -> nx.DiGraph:
         graph.add_node(f"verb:{verb}", kind="verb", name=verb)
     for obj in draft.objects:
         graph.add_node(f"obj:{obj}", kind="object", name=obj)
+        if draft.glosses.get(obj):  # the sense the object was asked in (prompt v2)
+            graph.nodes[f"obj:{obj}"]["gloss"] = draft.glosses[obj]
     for prop in draft.properties():
         graph.add_node(f"prop:{prop}", kind="property", name=prop)
+        if draft.definitions.get(prop):
+            graph.nodes[f"prop:{prop}"]["definition"] = draft.definitions[prop]
     for verb in draft.verbs:
         for prop, link in sorted(draft.verb_props.get(verb, {}).items()):
             graph.add_edge(
@@ -62,6 +66,8 @@ def build_graph(draft: KnowledgeDraft) -> nx.DiGraph:
                 relation=link.relation,
                 provenance=list(link.provenance),
             )
+            if link.role:  # "required" | "helpful" (prompt v2)
+                graph.edges[f"verb:{verb}", f"prop:{prop}"]["role"] = link.role
     objects = set(draft.objects)
     for prop in draft.properties():
         for obj, link in sorted(draft.prop_objs.get(prop, {}).items()):

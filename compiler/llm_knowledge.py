@@ -12,46 +12,101 @@ from collections import defaultdict
 from collections.abc import Callable
 
 from craft_e.compiler.draft import KnowledgeDraft, Link
-from craft_e.compiler.prompts import format_list, load_prompt, property_set_id
+from craft_e.compiler.prompts import (
+    DEFAULT_PROMPT_VERSION,
+    format_glossed_list,
+    format_list,
+    load_prompt,
+    property_set_id,
+)
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
 from craft_e.schemas.names import normalize_name, normalize_property
 from craft_e.schemas.v1.bundle import SourceInfo
-from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from craft_e.schemas.v1.payloads import (
+    ObjectProperties,
+    VerbObjects,
+    VerbProperties,
+    VerbPropertiesV2,
+)
 from craft_e.schemas.v1.records import Record
 
 K_PROPERTIES = 10
 Progress = Callable[[str, int], None]
+#: What the v2 object prompt says when a vocabulary entry carries no gloss.
+NO_GLOSS = "its most common everyday sense"
 
 
-def verb_call(verb: str, k: int = K_PROPERTIES) -> PromptCall:
-    return PromptCall(load_prompt("verb_properties"), verb, {"verb": verb, "k": k})
+def verb_call(verb: str, k: int = K_PROPERTIES, version: str = DEFAULT_PROMPT_VERSION) -> PromptCall:
+    return PromptCall(load_prompt("verb_properties", version), verb, {"verb": verb, "k": k})
 
 
-def object_call(obj: str, properties: list[str]) -> PromptCall:
+def object_call(
+    obj: str,
+    properties: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    gloss: str = "",
+    definitions: dict[str, str] | None = None,
+) -> PromptCall:
+    """Stage-2 call: v1 names the property set; v2 also gives the object's sense and each
+    property's definition (both part of the rendered prompt, hence of the record key)."""
     props = sorted(properties)
+    if version == "v1":
+        return PromptCall(
+            load_prompt("object_properties", version),
+            obj,
+            {
+                "object": obj,
+                "properties": props,
+                "property_list": format_list(props),
+                "property_set_id": property_set_id(props),
+            },
+        )
+    defs = definitions or {}
+    listed = [f"{p}: {defs[p]}" if defs.get(p) else p for p in props]
     return PromptCall(
-        load_prompt("object_properties"),
+        load_prompt("object_properties", version),
         obj,
         {
             "object": obj,
+            "gloss": gloss or NO_GLOSS,
             "properties": props,
-            "property_list": format_list(props),
-            "property_set_id": property_set_id(props),
+            "property_list": format_list(listed),
+            "property_set_id": property_set_id(listed),
         },
     )
 
 
-def direct_call(verb: str, objects: list[str]) -> PromptCall:
+def direct_call(
+    verb: str,
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+) -> PromptCall:
+    if version == "v1":
+        return PromptCall(
+            load_prompt("verb_objects", version),
+            verb,
+            {"verb": verb, "objects": sorted(objects), "object_list": format_list(objects)},
+        )
     return PromptCall(
-        load_prompt("verb_objects"),
+        load_prompt("verb_objects", version),
         verb,
-        {"verb": verb, "objects": sorted(objects), "object_list": format_list(objects)},
+        {
+            "verb": verb,
+            "objects": sorted(objects),
+            "object_list": format_glossed_list(objects, glosses or {}),
+        },
     )
 
 
-def index_object_records(source: LLMSource) -> dict[str, list[Record]]:
-    """Existing object-property records of this provider/model, by object, in key order."""
-    ref = load_prompt("object_properties").ref
+def index_object_records(source: LLMSource, version: str) -> dict[str, list[Record]]:
+    """Existing object-property records of this provider/model/prompt version, by object.
+
+    In v2 a record counts for an object only if it was asked in the same sense (gloss).
+    """
+    ref = load_prompt("object_properties", version).ref
     index: dict[str, list[Record]] = defaultdict(list)
     for _, record in source.cache.iter_records(LLM_SOURCE):
         req = record.request
@@ -61,51 +116,108 @@ def index_object_records(source: LLMSource) -> dict[str, list[Record]]:
 
 
 def plan_object_calls(
-    source: LLMSource, objects: list[str], properties: list[str]
+    source: LLMSource,
+    objects: list[str],
+    properties: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+    definitions: dict[str, str] | None = None,
 ) -> tuple[dict[str, list[Record]], list[PromptCall]]:
     """Which records cover each object, and the new calls needed for uncovered properties."""
-    index = index_object_records(source)
+    index = index_object_records(source, version)
+    glosses = glosses or {}
     wanted = set(properties)
     covering: dict[str, list[Record]] = {}
     calls: list[PromptCall] = []
     for obj in objects:
-        records = [r for r in index.get(obj, []) if wanted & set(r.request.variables["properties"])]
+        gloss = glosses.get(obj) or NO_GLOSS
+        records = [
+            r
+            for r in index.get(obj, [])
+            if wanted & set(r.request.variables["properties"])
+            and (version == "v1" or r.request.variables.get("gloss") == gloss)
+        ]
         covered = {p for r in records for p in r.request.variables["properties"]}
         missing = sorted(wanted - covered)
         covering[obj] = records
         if missing:
-            calls.append(object_call(obj, missing))
+            calls.append(
+                object_call(
+                    obj, missing, version=version, gloss=gloss, definitions=definitions
+                )
+            )
     return covering, calls
 
 
+def read_verb_properties(
+    record: Record, version: str
+) -> list[tuple[str, float, str, str]]:
+    """``(name, w_vp, definition, role)`` per property of a stage-1 record (v1: no definition,
+    role "helpful")."""
+    if version == "v1":
+        v1 = VerbProperties.model_validate(record.payload)
+        return [(p.name, p.weight, "", "helpful") for p in v1.properties]
+    v2 = VerbPropertiesV2.model_validate(record.payload)
+    return [(p.name, p.weight, p.definition.strip(), p.role) for p in v2.properties]
+
+
 def llm_property_draft(
-    source: LLMSource, verbs: list[str], objects: list[str], progress: Progress | None = None
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    progress: Progress | None = None,
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
 ) -> KnowledgeDraft:
     """The paper's CRAFT-E KB: verb -> k properties -> objects, both stages from ``source``."""
     draft = KnowledgeDraft(verbs=list(verbs), objects=list(objects))
+    if version != "v1":  # v1 prompts did not state a sense: the graph must not claim one
+        draft.glosses = {o: g for o, g in (glosses or {}).items() if o in set(objects)}
     stage1 = "stage1_verb_properties"
     verb_records = source.fetch_many(
-        [verb_call(v) for v in verbs], on_done=(lambda c: progress(stage1, 1)) if progress else None
+        [verb_call(v, version=version) for v in verbs],
+        on_done=(lambda c: progress(stage1, 1)) if progress else None,
     )
     for verb, record in zip(verbs, verb_records, strict=True):
-        payload = VerbProperties.model_validate(record.payload)
         draft.count(stage1, "records read")
         props = draft.verb_props.setdefault(verb, {})
-        for item in payload.properties:
-            name = normalize_property(item.name)
+        for raw_name, weight, definition, role in read_verb_properties(record, version):
+            name = normalize_property(raw_name)
             if name in props:
                 draft.drop(
                     stage1, f"{verb} -> {name}", "duplicate: property repeated after normalization"
                 )
                 continue
-            props[name] = Link(item.weight, (record.key,), "llm")
+            known = draft.definitions.get(name)
+            if definition and known is not None and known != definition:
+                draft.drop(
+                    stage1,
+                    f"{verb} -> {name}",
+                    f"conflicting definition: {name!r} is defined differently by another verb "
+                    f"(record {record.key[:12]}); the first definition is kept",
+                )
+                continue
+            if definition:
+                draft.definitions[name] = definition
+            props[name] = Link(weight, (record.key,), "llm", role=role if version != "v1" else "")
             draft.count(stage1, "edges kept")
+            if version != "v1":
+                draft.count(stage1, f"{role} properties")
         if len(props) < K_PROPERTIES:
             draft.count(stage1, "verbs with fewer than k properties")
 
     stage2 = "stage2_object_properties"
     properties = draft.properties()
-    covering, new_calls = plan_object_calls(source, objects, properties)
+    covering, new_calls = plan_object_calls(
+        source,
+        objects,
+        properties,
+        version=version,
+        glosses=draft.glosses,
+        definitions=draft.definitions,
+    )
     new_records = source.fetch_many(
         new_calls, on_done=(lambda c: progress(stage2, 1)) if progress else None
     )
@@ -147,7 +259,10 @@ def llm_property_draft(
             kind="llm",
             provider=source.provider,
             model=source.model,
-            prompts=[load_prompt("verb_properties").ref, load_prompt("object_properties").ref],
+            prompts=[
+                load_prompt("verb_properties", version).ref,
+                load_prompt("object_properties", version).ref,
+            ],
             records=len(verb_records) + used_records,
         )
     )
@@ -155,7 +270,13 @@ def llm_property_draft(
 
 
 def direct_llm_draft(
-    source: LLMSource, verbs: list[str], objects: list[str], progress: Progress | None = None
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    progress: Progress | None = None,
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
 ) -> KnowledgeDraft:
     """The direct-LLM baseline as a bundle: verb -> ``direct: <verb>`` -> ranked objects.
 
@@ -163,10 +284,12 @@ def direct_llm_draft(
     same runtime and harness score it; objects the model left out get no edge.
     """
     draft = KnowledgeDraft(verbs=list(verbs), objects=list(objects))
+    if version != "v1":
+        draft.glosses = {o: g for o, g in (glosses or {}).items() if o in set(objects)}
     stage = "direct_verb_objects"
     vocabulary = set(objects)
     records = source.fetch_many(
-        [direct_call(v, objects) for v in verbs],
+        [direct_call(v, objects, version=version, glosses=glosses) for v in verbs],
         on_done=(lambda c: progress(stage, 1)) if progress else None,
     )
     for verb, record in zip(verbs, records, strict=True):
@@ -187,7 +310,7 @@ def direct_llm_draft(
             kind="llm",
             provider=source.provider,
             model=source.model,
-            prompts=[load_prompt("verb_objects").ref],
+            prompts=[load_prompt("verb_objects", version).ref],
             records=len(records),
         )
     )

@@ -17,7 +17,12 @@ from typing import Any
 from pydantic import BaseModel
 
 from craft_e.paths import PROMPTS_DIR
-from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from craft_e.schemas.v1.payloads import (
+    ObjectProperties,
+    VerbObjects,
+    VerbProperties,
+    VerbPropertiesV2,
+)
 from craft_e.schemas.v1.records import Message
 
 PAYLOADS: dict[str, type[BaseModel]] = {
@@ -25,7 +30,17 @@ PAYLOADS: dict[str, type[BaseModel]] = {
     "object_properties": ObjectProperties,
     "verb_objects": VerbObjects,
 }
-DEFAULT_VERSIONS = {"verb_properties": "v1", "object_properties": "v1", "verb_objects": "v1"}
+#: Payload models whose shape changed with a prompt version (``<id>@<version>``).
+VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {"verb_properties@v2": VerbPropertiesV2}
+#: v2 asks for discriminating, defined properties and reads objects in a glossed sense
+#: (issue 9); v1 stays loadable so its records keep replaying.
+PROMPT_VERSIONS = ("v1", "v2")
+DEFAULT_PROMPT_VERSION = "v2"
+DEFAULT_VERSIONS = {
+    "verb_properties": DEFAULT_PROMPT_VERSION,
+    "object_properties": DEFAULT_PROMPT_VERSION,
+    "verb_objects": DEFAULT_PROMPT_VERSION,
+}
 _SECTION = re.compile(r"^## (system|user)\s*$", re.MULTILINE)
 
 
@@ -48,7 +63,7 @@ class PromptTemplate:
 
     @property
     def payload_model(self) -> type[BaseModel]:
-        return PAYLOADS[self.prompt_id]
+        return VERSIONED_PAYLOADS.get(self.ref, PAYLOADS[self.prompt_id])
 
     def response_schema(self) -> dict[str, Any]:
         return self.payload_model.model_json_schema()
@@ -92,3 +107,10 @@ def property_set_id(properties: list[str]) -> str:
 def format_list(items: list[str]) -> str:
     """One item per line, sorted: the rendering must not depend on input order."""
     return "\n".join(f"- {item}" for item in sorted(items))
+
+
+def format_glossed_list(items: list[str], glosses: dict[str, str]) -> str:
+    """``- name: gloss`` per line (``- name`` where no gloss is known), sorted by name."""
+    return "\n".join(
+        f"- {item}: {glosses[item]}" if glosses.get(item) else f"- {item}" for item in sorted(items)
+    )

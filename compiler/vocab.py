@@ -1,5 +1,8 @@
 """Reading verb and object vocabulary files: one name per line, ``#`` comments allowed.
 
+A line may carry a gloss after a tab (``name<TAB>gloss``): the sense the name is meant in
+(``crane<TAB>a large long-necked wading bird``). Prompt v2 puts it into the object's prompt.
+
 Bad input gets a clear error naming the file and line; harmless irregularities (blank lines,
 duplicates after normalization, case) are normalized and *reported*, not silently absorbed.
 """
@@ -24,6 +27,10 @@ class Vocabulary:
     path: Path
     names: list[str]
     notes: list[str] = field(default_factory=list)
+    glosses: dict[str, str] = field(default_factory=dict)  # name -> its sense (optional column)
+
+
+MAX_GLOSS_CHARS = 300
 
 
 def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
@@ -48,8 +55,22 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
     seen: dict[str, int] = {}
     notes: list[str] = []
     blank = 0
+    glosses: dict[str, str] = {}
     for lineno, raw_line in enumerate(text.splitlines(), start=1):
-        line = raw_line.split("#", 1)[0].strip()
+        # ``name<TAB>gloss``: the gloss fixes the sense (it may contain '#'); '#' starts a
+        # comment in the name column only.
+        name_part, _, gloss = raw_line.partition("\t")
+        line = name_part.split("#", 1)[0].strip()
+        gloss = " ".join(gloss.split())
+        if gloss and not line:
+            raise VocabError(
+                f"{path}:{lineno}: a gloss without a name; write 'name<TAB>gloss'"
+            )
+        if len(gloss) > MAX_GLOSS_CHARS:
+            raise VocabError(
+                f"{path}:{lineno}: gloss of {len(gloss)} characters (max {MAX_GLOSS_CHARS}); "
+                "shorten it to one line"
+            )
         if not line:
             blank += 1 if not raw_line.strip().startswith("#") else 0
             continue
@@ -64,8 +85,10 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
             continue
         seen[name] = lineno
         names.append(name)
+        if gloss:
+            glosses[name] = gloss
     if blank:
         notes.append(f"{path}: {blank} blank line(s) ignored")
     if not names:
         raise VocabError(f"{path}: no {kind} found (the file is empty or only comments)")
-    return Vocabulary(path=path, names=names, notes=notes)
+    return Vocabulary(path=path, names=names, notes=notes, glosses=glosses)

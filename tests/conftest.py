@@ -55,6 +55,7 @@ def record_fixture(
         read_vocabulary(KB_SMALL / verbs, kind="verbs").names,
         read_vocabulary(KB_SMALL / objects, kind="objects").names,
         note=NOTE,
+        version="v1",
     )
     assert not result.skipped, result.skipped
 
@@ -76,6 +77,7 @@ def build_config(
         provider=PROVIDER,
         model=MODEL,
         cache_root=cache_root,
+        prompt_version="v1",
     )
 
 

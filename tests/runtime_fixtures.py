@@ -80,13 +80,13 @@ def runtime_kbs_fixture(tmp_path_factory: pytest.TempPathFactory) -> RuntimeKBs:
     for prompt, answers in (("verb_properties", "vp.jsonl"), ("object_properties", "op.jsonl"),
                             ("verb_objects", "direct.jsonl")):
         result = record_answers(source, prompt, RUNTIME_KB / answers, verbs, objects,
-                                note="runtime test fixture (not knowledge to ship)")
+                                note="runtime test fixture (not knowledge to ship)", version="v1")
         assert not result.skipped, result.skipped
 
     def make(out: str, **kw: Any) -> Path:
         config = BuildConfig(verbs_file=RUNTIME_KB / "verbs.txt", objects_file=RUNTIME_KB / "objects.txt",
                              out=root / out, name=f"runtime-{out}", provider=PROVIDER, model=MODEL,
-                             cache_root=cache, **kw)
+                             cache_root=cache, prompt_version="v1", **kw)
         return build(config).out
 
     kb = make("kb", overrides_file=RUNTIME_KB / "overrides.toml", tau=TAU)

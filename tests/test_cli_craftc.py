@@ -39,7 +39,7 @@ def replay_args(cache: Path, out: Path, verbs: str = "verbs.txt") -> list[str | 
     return [
         "build", "--verbs", KB_SMALL / verbs, "--objects", KB_SMALL / "objects.txt",
         "--cache", cache, "--out", out, "--name", KB_NAME,
-        "--record-provider", PROVIDER, "--model", MODEL, "--quiet",
+        "--record-provider", PROVIDER, "--model", MODEL, "--quiet", "--prompts", "v1",
     ]  # fmt: skip
 
 
@@ -78,7 +78,7 @@ def test_replay_miss_exits_3_naming_subject_and_record_path(
     out = tmp_path / "bundle"
     result = craftc(*replay_args(kb_a.cache, out, verbs="verbs_stir.txt"))
     assert result.exit_code == 3, result.output
-    key = fixture_source(kb_a.cache).request_for(verb_call("stir")).key()
+    key = fixture_source(kb_a.cache).request_for(verb_call("stir", version="v1")).key()
     text = flat(result.output)
     assert "no record for verb_properties@v1 subject='stir'" in text
     assert f"expected {kb_a.cache / LLM_SOURCE / f'{key}.json'}" in text
@@ -106,6 +106,8 @@ def test_curate_then_build_then_validate(kb_a: FixtureKB, tmp_path: Path) -> Non
         KB_SMALL / "verbs.txt",
         "--objects",
         KB_SMALL / "objects.txt",
+        "--prompts",
+        "v1",
     ]
     for prompt, answers in (
         ("verb_properties", "verb_properties.jsonl"),
@@ -159,6 +161,8 @@ def test_curate_bad_answer_names_file_and_line(tmp_path: Path) -> None:
         KB_SMALL / "objects.txt",
         "--cache",
         tmp_path / "cache",
+        "--prompts",
+        "v1",
     )
     assert result.exit_code == 2
     assert f"{answers}:2: properties" in flat(result.output)

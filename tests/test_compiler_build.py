@@ -122,7 +122,7 @@ class FixtureTransport:
 
 config = BuildConfig(verbs_file=fixtures / "verbs.txt", objects_file=fixtures / "objects.txt",
                      out=out, name="fixture-kb", provider="test-fixture", model="fixture-v1",
-                     cache_root=cache)
+                     cache_root=cache, prompt_version="v1")
 print(build(config, transport=FixtureTransport()).manifest.content_sha256)
 """
 
@@ -169,7 +169,7 @@ def test_replay_miss_fails_before_out_is_touched(kb_a: FixtureKB, tmp_path: Path
     out = tmp_path / "bundle"
     with pytest.raises(MissingRecordError) as info:
         build(build_config(kb_a.cache, out, verbs="verbs_stir.txt"))
-    key = fixture_source(kb_a.cache).request_for(verb_call("stir")).key()
+    key = fixture_source(kb_a.cache).request_for(verb_call("stir", version="v1")).key()
     assert "subject='stir'" in str(info.value)
     assert str(kb_a.cache / LLM_SOURCE / f"{key}.json") in str(info.value)
     assert not out.exists()

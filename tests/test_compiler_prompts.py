@@ -20,9 +20,9 @@ from craft_e.compiler.sources.llm import LLMSource, PromptCall
 from craft_e.paths import PROMPTS_DIR
 
 GOLDEN = {
-    "verb_properties.v1.cut": verb_call("cut"),
-    "object_properties.v1.knife": object_call("knife", ["sharp edge", "has a handle", "concave"]),
-    "verb_objects.v1.scoop": direct_call("scoop", ["spoon", "knife", "bowl"]),
+    "verb_properties.v1.cut": verb_call("cut", version="v1"),
+    "object_properties.v1.knife": object_call("knife", ["sharp edge", "has a handle", "concave"], version="v1"),
+    "verb_objects.v1.scoop": direct_call("scoop", ["spoon", "knife", "bowl"], version="v1"),
 }
 
 
@@ -39,8 +39,8 @@ def test_rendering_matches_golden(name: str) -> None:
 
 
 def test_rendering_does_not_depend_on_input_order() -> None:
-    a = object_call("cup", ["waterproof", "concave", "has a handle"])
-    b = object_call("cup", ["has a handle", "waterproof", "concave"])
+    a = object_call("cup", ["waterproof", "concave", "has a handle"], version="v1")
+    b = object_call("cup", ["has a handle", "waterproof", "concave"], version="v1")
     assert a.template.render(**a.variables) == b.template.render(**b.variables)
     assert a.variables["property_set_id"] == property_set_id(
         ["concave", "has a handle", "waterproof"]
@@ -70,21 +70,21 @@ def test_prompt_version_is_part_of_the_key(tmp_path: Path) -> None:
     assert r1.key() != r2.key()  # ... but the version alone changes the key
     assert r3.messages != r1.messages and r3.key() not in {r1.key(), r2.key()}
     # the shipped v1 template renders exactly like its copy: the key depends on content + ref
-    assert source.request_for(verb_call("cut")).key() == r1.key()
+    assert source.request_for(verb_call("cut", version="v1")).key() == r1.key()
 
 
 def test_key_covers_provider_model_params_and_variables(tmp_path: Path) -> None:
     source = _source(tmp_path)
-    base = source.request_for(verb_call("cut")).key()
-    assert source.request_for(verb_call("cut")).key() == base, "keys are stable"
-    assert source.request_for(verb_call("scoop")).key() != base
-    assert source.request_for(verb_call("cut", k=5)).key() != base
+    base = source.request_for(verb_call("cut", version="v1")).key()
+    assert source.request_for(verb_call("cut", version="v1")).key() == base, "keys are stable"
+    assert source.request_for(verb_call("scoop", version="v1")).key() != base
+    assert source.request_for(verb_call("cut", k=5, version="v1")).key() != base
     other = LLMSource(source.cache, provider="other", model="fixture-v1")
-    assert other.request_for(verb_call("cut")).key() != base
+    assert other.request_for(verb_call("cut", version="v1")).key() != base
     hot = LLMSource(
         source.cache, provider="test-fixture", model="fixture-v1", params={"temperature": 0.7}
     )
-    assert hot.request_for(verb_call("cut")).key() != base
+    assert hot.request_for(verb_call("cut", version="v1")).key() != base
 
 
 def test_template_errors(tmp_path: Path) -> None:

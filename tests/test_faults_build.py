@@ -124,7 +124,7 @@ def build_args(url: str, cache: Path, out: Path) -> list[str]:
     return ["build", "--provider", "openai", "--base-url", f"{url}/v1", "--model", MODEL,
             "--verbs", str(KB_SMALL / "verbs.txt"), "--objects", str(KB_SMALL / "objects.txt"),
             "--out", str(out), "--name", "fault-kb", "--cache", str(cache), "--quiet",
-            "--force"]  # the previous bundle at --out (a copy of kb_a) has another kb name
+            "--force", "--prompts", "v1"]  # the previous bundle at --out (a copy of kb_a) has another kb name
 
 
 def craftc_process(args: list[str]) -> subprocess.Popen[str]:

@@ -113,7 +113,8 @@ def _build_real_kb(root: Path) -> tuple[Path, Path]:
     }.items():
         (root / name).write_text(text)
     runner = CliRunner()
-    vocab = ["--verbs", str(root / "verbs.txt"), "--objects", str(root / "objects.txt")]
+    vocab = ["--verbs", str(root / "verbs.txt"), "--objects", str(root / "objects.txt"),
+             "--prompts", "v1"]
     cache = ["--cache", str(root / "cache")]
     for prompt, answers in (("verb_properties", "vp.jsonl"), ("object_properties", "op.jsonl")):
         args = ["curate", "record", "--prompt", prompt, "--answers", str(root / answers)]
@@ -645,6 +646,7 @@ def test_record_answers_fails_only_with_curation_error(
                 answers,
                 ["cut", "scoop"],
                 ["knife", "spoon", "bowl"],
+                version="v1",
             )
         except CurationError:
             CASES[name]["CurationError"] += 1

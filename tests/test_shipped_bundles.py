@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Literal
 
 import pytest
 
@@ -18,10 +19,12 @@ from craft_e.compiler.build import BuildConfig, KnowledgeMode, build
 from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
 from craft_e.schemas.v1.bundle import BUNDLE_FILES, MANIFEST_FILE
 
-SHIPPED: dict[str, KnowledgeMode] = {
-    "craft-e-default": "llm",
-    "direct-llm": "direct",
-    "conceptnet": "conceptnet",
+#: name -> (mode, prompt version), as scripts/build_kbs builds them.
+SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"]]] = {
+    "craft-e-default": ("llm", "v2"),
+    "craft-e-v1": ("llm", "v1"),
+    "direct-llm": ("direct", "v2"),
+    "conceptnet": ("conceptnet", "v2"),
 }
 
 
@@ -37,8 +40,9 @@ def cold_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize("name", list(SHIPPED))
 def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp_path: Path) -> None:
-    mode = SHIPPED[name]
+    mode, prompts = SHIPPED[name]
     config = BuildConfig(
+        prompt_version=prompts,
         verbs_file=VOCAB_DIR / "union_verbs.txt",
         objects_file=VOCAB_DIR / "union_objects.txt",
         out=tmp_path / name,
@@ -60,7 +64,7 @@ def test_default_bundle_covers_every_vocabulary_and_reports_gaps() -> None:
     manifest = json.loads((KB_DIR / "craft-e-default" / MANIFEST_FILE).read_text())
     report = json.loads((KB_DIR / "craft-e-default" / "report.json").read_text())
     for vocab in VOCAB_DIR.glob("*_objects.txt"):
-        names = [n for n in vocab.read_text().splitlines() if n]
+        names = [n.split("\t")[0] for n in vocab.read_text().splitlines() if n]
         assert set(names) <= set(manifest["objects"]), vocab.name
     for vocab in VOCAB_DIR.glob("*_verbs.txt"):
         names = [n for n in vocab.read_text().splitlines() if n]

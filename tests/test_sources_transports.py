@@ -142,7 +142,7 @@ def _assert_request_shape(wire: Wire, received: Received, call_record: Record) -
 
 def test_success_records_one_valid_record(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     h = harness_for(wire.reply(VALID))
-    record = h.source.fetch(verb_call("cut"))
+    record = h.source.fetch(verb_call("cut", version="v1"))
     assert _only_record(h) == record
     assert record.payload["properties"][0] == {"name": "sharp edge", "weight": 0.9}
     assert record.raw_response == VALID
@@ -151,14 +151,14 @@ def test_success_records_one_valid_record(wire: Wire, harness_for: Callable[...,
     _assert_request_shape(wire, h.server.received[0], record)
     assert SECRET.encode() not in h.cache_bytes()
     # cache-first: asking again answers from the record, the server sees nothing new
-    assert h.source.fetch(verb_call("cut")) == record
+    assert h.source.fetch(verb_call("cut", version="v1")) == record
     assert len(h.server.received) == 1
 
 
 def test_429_honours_retry_after_then_succeeds(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     limited = Reply(429, {"error": {"message": "rate limited"}}, headers={"Retry-After": "3"})
     h = harness_for(limited, wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 2
     assert h.sleeps == [3.0]  # the server's hint, longer than the 0.5 s base backoff
     _only_record(h)
@@ -167,41 +167,41 @@ def test_429_honours_retry_after_then_succeeds(wire: Wire, harness_for: Callable
 def test_retry_after_is_bounded(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     limited = Reply(429, {"error": {"message": "slow down"}}, headers={"Retry-After": "86400"})
     h = harness_for(limited, wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert h.sleeps == [MAX_RETRY_AFTER_S]
 
 
 def test_500_then_success(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     h = harness_for(Reply(500, {"error": {"message": "internal"}}), wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 2 and h.sleeps == [0.5]
     _only_record(h)
 
 
 def test_body_that_is_not_json_is_retried(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     h = harness_for(Reply(200, b"<html>upstream proxy error</html>"), wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 2
     _only_record(h)
 
 
 def test_unexpected_response_shape_is_retried(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     h = harness_for(Reply(200, {"unexpected": True}), wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 2
     _only_record(h)
 
 
 def test_schema_invalid_answer_then_valid(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     h = harness_for(wire.reply(SCHEMA_INVALID), wire.reply("not json at all"), wire.reply(VALID))
-    record = h.source.fetch(verb_call("cut"))
+    record = h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 3
     assert _only_record(h).raw_response == VALID == record.raw_response
 
 
 def test_connection_cut_mid_body_then_success(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     h = harness_for(CutBody(), wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 2
     _only_record(h)
 
@@ -212,7 +212,7 @@ def test_401_is_fatal_and_names_the_key_variable(
     denied = Reply(401, {"error": {"message": f"Incorrect API key provided: {SECRET}"}})
     h = harness_for(denied, wire.reply(VALID))
     with pytest.raises(FatalTransportError) as caught:
-        h.source.fetch(verb_call("cut"))
+        h.source.fetch(verb_call("cut", version="v1"))
     message = str(caught.value)
     assert "HTTP 401" in message
     assert ("OPENAI_API_KEY" if wire is OPENAI else "GEMINI_API_KEY") in message
@@ -226,7 +226,7 @@ def test_client_errors_are_fatal(
 ) -> None:
     h = harness_for(Reply(status, {"error": {"message": "nope"}}))
     with pytest.raises(FatalTransportError, match=f"HTTP {status}"):
-        h.source.fetch(verb_call("cut"))
+        h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 1 and h.records() == []
 
 
@@ -236,7 +236,7 @@ def test_timeout_gives_source_error_after_bounded_attempts(
     slow = Reply(200, b"{}", delay_s=1.0)
     h = harness_for(slow, slow, timeout_s=0.2, max_attempts=2)
     with pytest.raises(SourceError, match="timed out") as caught:
-        h.source.fetch(verb_call("cut"))
+        h.source.fetch(verb_call("cut", version="v1"))
     assert not isinstance(caught.value, FatalTransportError)
     assert "after 2 attempts" in str(caught.value)
     assert len(h.server.received) == 2 and h.records() == []
@@ -247,7 +247,7 @@ def test_persistent_failures_stop_after_max_attempts(
 ) -> None:
     h = harness_for(*[Reply(503, {"error": {"message": "overloaded"}})] * 5, max_attempts=3)
     with pytest.raises(SourceError, match="after 3 attempts"):
-        h.source.fetch(verb_call("cut"))
+        h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 3 and h.records() == []
     assert h.sleeps == [0.5, 1.0]
 
@@ -255,7 +255,7 @@ def test_persistent_failures_stop_after_max_attempts(
 def test_truncated_answer_is_retried(wire: Wire, harness_for: Callable[..., Harness]) -> None:
     cut = openai_reply(VALID[:20], "length") if wire is OPENAI else gemini_reply(VALID[:20], "MAX_TOKENS")
     h = harness_for(cut, wire.reply(VALID))
-    h.source.fetch(verb_call("cut"))
+    h.source.fetch(verb_call("cut", version="v1"))
     assert len(h.server.received) == 2
     _only_record(h)
 
@@ -291,13 +291,13 @@ def test_local_server_needs_no_key(tmp_path: Path) -> None:
         transport = make_transport("openai", "llama-3.1-8b", server.url + "/v1", env={})
         source = LLMSource(cache=RecordCache(tmp_path), provider="openai", model="llama-3.1-8b",
                            transport=transport, sleep=lambda s: None)
-        source.fetch(verb_call("cut"))
+        source.fetch(verb_call("cut", version="v1"))
     assert "Authorization" not in server.received[0].headers
     assert server.received[0].json()["model"] == "llama-3.1-8b"
 
 
 def test_gemini_schema_uses_the_openapi_subset() -> None:
-    schema = verb_call("cut").template.response_schema()
+    schema = verb_call("cut", version="v1").template.response_schema()
     converted = gemini_schema(schema)
     text = json.dumps(converted)
     assert "$ref" not in text and "$defs" not in text and "additionalProperties" not in text

@@ -167,13 +167,14 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 def read_name_list(path: Path) -> list[str]:
-    """Names from a text file, one per line; blank lines and ``#`` comment lines are skipped.
+    """Names from a text file, one per line; blank lines and ``#`` comment lines are skipped,
+    and a gloss after a tab (``name<TAB>gloss``, as in the compiler's vocabularies) is dropped.
 
     Raises ``OSError`` (the caller names the option the file came from)."""
     return [
-        ln.strip()
+        ln.split("\t", 1)[0].strip()
         for ln in path.read_text(encoding="utf-8").splitlines()
-        if ln.strip() and not ln.startswith("#")
+        if ln.split("\t", 1)[0].strip() and not ln.startswith("#")
     ]
 
 

@@ -6,7 +6,7 @@ probabilities of relevance in [0, 1] as in the paper (w_vp, w_po).
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -34,6 +34,37 @@ class VerbProperties(_Strict):
     @field_validator("properties")
     @classmethod
     def _unique(cls, value: list[ScoredProperty]) -> list[ScoredProperty]:
+        names = [p.name.strip().lower() for p in value]
+        if len(set(names)) != len(names):
+            raise ValueError("property names must be unique")
+        return value
+
+
+Role = Literal["required", "helpful"]
+
+
+class DefinedProperty(_Strict):
+    """One stage-1 (v2) property: its sense fixed by a definition, and how the verb needs it.
+
+    ``required``: the action fails without it (a missing required property can veto an object);
+    ``helpful``: it makes an object better suited but is not needed.
+    """
+
+    name: Annotated[str, Field(min_length=1, max_length=48)]
+    definition: Annotated[str, Field(min_length=3, max_length=200)]
+    role: Role
+    weight: Weight
+
+
+class VerbPropertiesV2(_Strict):
+    """Stage 1 answer (prompt v2): 3..k discriminating, defined properties for ``verb``."""
+
+    verb: Phrase
+    properties: list[DefinedProperty] = Field(min_length=1, max_length=20)
+
+    @field_validator("properties")
+    @classmethod
+    def _unique(cls, value: list[DefinedProperty]) -> list[DefinedProperty]:
         names = [p.name.strip().lower() for p in value]
         if len(set(names)) != len(names):
             raise ValueError("property names must be unique")
