@@ -3,6 +3,11 @@
 Embeddings are cached by (encoder id, text) under ``artifacts/cache/embeddings/<encoder>/`` as
 ``.npy`` files, so changing one verb re-embeds only its own texts; the encoder is loaded only
 when something is missing.
+
+Each folder keeps an index (``INDEX.tsv``, see ``compiler/cache.py``) binding every file to its
+phrase and to its vector's bytes: the file name only hashes the phrase, so without it two
+swapped files would be used silently. A file the index does not list (an older cache) is
+re-embedded; one that contradicts its entry is an error naming the file.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.compiler.cache import atomic_write_bytes
+from craft_e.compiler.cache import EmbeddingIndex, atomic_write_bytes, embedding_digest
 from craft_e.runtime.encoders.text import load_text_encoder
 
 FloatArray = npt.NDArray[np.float32]
@@ -26,6 +31,7 @@ class EmbeddingCache:
 
     def __init__(self, root: Path, encoder_id: str) -> None:
         self.folder = root / encoder_id
+        self.index = EmbeddingIndex(self.folder)
         self.encoder_id = encoder_id
         self.hits = 0
         self.misses = 0
@@ -37,12 +43,15 @@ class EmbeddingCache:
         """Embeddings for ``texts`` (``[N, d]``), computing only the ones not cached."""
         found: dict[str, FloatArray] = {}
         missing: list[str] = []
+        entries = self.index.read()
         for text in dict.fromkeys(texts):
             path = self._path(text)
             if path.is_file():
-                found[text] = np.load(path, allow_pickle=False)
-            else:
-                missing.append(text)
+                data = path.read_bytes()
+                if self.index.check(path, text, data, entries.get(path.name)):
+                    found[text] = np.load(io.BytesIO(data), allow_pickle=False)
+                    continue
+            missing.append(text)
         self.hits += len(found)
         self.misses += len(missing)
         if missing:
@@ -50,11 +59,15 @@ class EmbeddingCache:
             for start in range(0, len(missing), 16):
                 chunk = missing[start : start + 16]
                 vectors = encoder.embed(chunk)  # [len(chunk), d]
+                added: dict[str, tuple[str, str]] = {}
                 for text, vec in zip(chunk, vectors, strict=True):
                     buffer = io.BytesIO()
                     np.save(buffer, vec.astype(np.float32), allow_pickle=False)
-                    atomic_write_bytes(self._path(text), buffer.getvalue())
+                    path = self._path(text)
+                    atomic_write_bytes(path, buffer.getvalue())
+                    added[path.name] = (embedding_digest(text, buffer.getvalue()), text)
                     found[text] = vec
+                self.index.add(added)
                 if progress is not None:
                     progress(len(chunk))
         if not texts:

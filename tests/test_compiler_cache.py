@@ -14,7 +14,15 @@ from pathlib import Path
 
 import pytest
 
-from craft_e.compiler.cache import CacheError, RecordCache, atomic_write_bytes, record_bytes
+from craft_e.compiler.cache import (
+    INDEX_FILE,
+    CacheError,
+    RecordCache,
+    atomic_write_bytes,
+    read_index,
+    record_bytes,
+    sha256_hex,
+)
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, MissingRecordError
 from craft_e.schemas.v1.records import Record
@@ -24,7 +32,7 @@ PAYLOAD = {"verb": "cut", "properties": [{"name": "sharp edge", "weight": 0.9}]}
 
 def _record(cache: RecordCache, verb: str = "cut", note: str = "test fixture") -> Record:
     source = LLMSource(cache, provider="test-fixture", model="fixture-v1")
-    request = source.request_for(verb_call(verb))
+    request = source.request_for(verb_call(verb, version="v1"))
     payload = {**PAYLOAD, "verb": verb}
     return Record(
         key=request.key(),
@@ -48,7 +56,8 @@ def test_put_then_get_round_trips(cache: RecordCache) -> None:
     assert path.read_bytes() == record_bytes(record)
     assert cache.get(LLM_SOURCE, record.key) == record
     assert cache.get(LLM_SOURCE, "0" * 64) is None  # a miss is None, not an error
-    assert [p.name for p in path.parent.iterdir()] == [path.name], "no temp files left behind"
+    left = sorted(p.name for p in path.parent.iterdir())
+    assert left == sorted([path.name, INDEX_FILE, ".index.lock"]), "no temp files left behind"
 
 
 def test_record_bytes_are_canonical(cache: RecordCache) -> None:
@@ -91,7 +100,10 @@ def test_concurrent_puts_of_one_key_leave_one_whole_record(cache: RecordCache) -
     for t in threads:
         t.join()
     assert cache.get(LLM_SOURCE, record.key) == record
-    assert len(list((cache.root / LLM_SOURCE).iterdir())) == 1
+    assert len(list((cache.root / LLM_SOURCE).glob("*.json"))) == 1
+    assert read_index(cache.root / LLM_SOURCE / INDEX_FILE) == {
+        f"{record.key}.json": sha256_hex(record_bytes(record))
+    }
 
 
 def test_corrupt_record_is_an_error_naming_the_file(cache: RecordCache) -> None:
@@ -169,7 +181,7 @@ def test_stats_count_records_per_provider_and_prompt(cache: RecordCache) -> None
 
 def test_replay_miss_names_the_subject_and_the_expected_path(cache: RecordCache) -> None:
     source = LLMSource(cache, provider="test-fixture", model="fixture-v1")
-    call = verb_call("whisk")
+    call = verb_call("whisk", version="v1")
     expected = cache.path_for(LLM_SOURCE, source.request_for(call).key())
     with pytest.raises(MissingRecordError) as info:
         source.fetch(call)

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 from pydantic import ValidationError
 
-from craft_e.compiler.cache import RecordCache
+from craft_e.compiler.cache import CacheError, RecordCache
 from craft_e.compiler.prompts import PromptTemplate
 from craft_e.schemas.v1.records import Record, RecordRequest
 
@@ -75,6 +75,32 @@ def extract_json(text: str) -> Any:
     return json.loads(stripped)
 
 
+def check_payload(record: Record, template: PromptTemplate) -> Record:
+    """A stored record is used only if its payload is what its raw response says.
+
+    The payload is what builds read; the raw response is what the model (or curator) wrote.
+    A payload edited by hand afterwards no longer equals the validated parse of the raw
+    response, and is refused (``CacheError``) instead of silently entering a bundle.
+    """
+    where = f"record {record.key} ({record.request.prompt}, subject={record.request.subject!r})"
+    try:
+        parsed = extract_json(record.raw_response)
+    except ValueError:
+        raise CacheError(f"{where}: raw_response is not JSON; the record was edited") from None
+    if parsed == record.payload:
+        return record
+    try:
+        validated = template.payload_model.model_validate(parsed).model_dump(mode="json")
+    except ValidationError:
+        validated = None
+    if validated != record.payload:
+        raise CacheError(
+            f"{where}: payload differs from the validated parse of raw_response (the answer "
+            "was edited after recording); restore the record file or record the prompt again"
+        )
+    return record
+
+
 @dataclass
 class LLMSource:
     """Answers prompts from the record cache, and from a live transport when one is given.
@@ -108,7 +134,8 @@ class LLMSource:
 
     def lookup(self, call: PromptCall) -> Record | None:
         request = self.request_for(call)
-        return self.cache.get(LLM_SOURCE, request.key())
+        record = self.cache.get(LLM_SOURCE, request.key())
+        return None if record is None else check_payload(record, call.template)
 
     def fetch(self, call: PromptCall) -> Record:
         """The record answering ``call``: from the cache, else from the live transport."""
@@ -116,7 +143,7 @@ class LLMSource:
         key = request.key()
         cached = self.cache.get(LLM_SOURCE, key)
         if cached is not None:
-            return cached
+            return check_payload(cached, call.template)
         if self.transport is None:
             raise MissingRecordError(
                 f"no record for {call.template.ref} subject={call.subject!r} "
