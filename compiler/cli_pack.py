@@ -12,6 +12,7 @@ from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 _err = Console(stderr=True)
 _out = Console()
@@ -20,7 +21,7 @@ EXIT_BAD_INPUT = 2
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -44,10 +45,10 @@ def pack(
     except PackError as exc:
         _fail(str(exc))
     for note in result.notes:
-        _err.print(f"[yellow]warning:[/] {note}", highlight=False, soft_wrap=True)
+        _err.print(f"[yellow]warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
     s = result.statement
     _out.print(
-        f"packed [bold]{s.kb_name}[/] {s.kb_version} -> {result.out} ({result.bytes} bytes)\n"
+        f"packed [bold]{escape(s.kb_name)}[/] {s.kb_version} -> {escape(str(result.out))} ({result.bytes} bytes)\n"
         f"  content sha256 {s.content_sha256}\n"
         f"  signed by key {result.key_id}",
         highlight=False,
@@ -73,6 +74,7 @@ def keygen(
         f"wrote {pair.public_key} (public: copy to robots, pass as --trusted-key)\n"
         f"  key id {pair.key_id}",
         highlight=False,
+        markup=False,
         soft_wrap=True,
     )
 

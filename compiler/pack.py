@@ -238,20 +238,49 @@ def pack_bundle(
     payload = archive_bytes(members, compression)
     blob = seal(payload, members[0][1], manifest, seed, compression)
     public = bytes(SigningKey(seed).verify_key)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    _check_out_file(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    except OSError as exc:
+        raise PackError(f"{out}: cannot write the package ({exc.strerror or exc})") from None
     tmp = Path(tmp_name)
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(blob)
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(tmp, 0o644)
+        os.chmod(tmp, 0o666 & ~_umask())
         try:
             verified = verify_package(tmp, [public])
         except PackageError as exc:  # pragma: no cover - would be a packer bug
             raise PackError(f"the package just written does not verify: {exc}") from None
+        _check_out_file(out)
         os.replace(tmp, out)
+    except OSError as exc:
+        raise PackError(
+            f"{out}: cannot write the package ({exc.strerror or exc}); free disk space or fix "
+            "the folder's permissions"
+        ) from None
     finally:
         tmp.unlink(missing_ok=True)
     return PackResult(out, verified.statement, verified.key_id, len(blob), notes)
+
+
+def _check_out_file(out: Path) -> None:
+    """``-o`` names a file to create or replace: never a folder, a FIFO or a device."""
+    if out.is_symlink() or not out.exists():
+        return
+    if out.is_dir():
+        raise PackError(
+            f"{out}: is a folder; give the package's file path, e.g. {out / 'kb.craft'} "
+            "(nothing was written)"
+        )
+    if not out.is_file():
+        raise PackError(f"{out}: exists and is not a regular file (nothing was written)")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

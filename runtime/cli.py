@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 if TYPE_CHECKING:
     from craft_e.runtime.grounding import ROI
@@ -65,7 +66,7 @@ EXIT_BAD_INPUT = 2
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -171,7 +172,10 @@ def ground(
     from craft_e.runtime.encoders import load as load_encoder
     from craft_e.runtime.encoders.image import crop_box, load_image
     from craft_e.runtime.grounding import DEFAULT_TEMPERATURE, ROI, Grounder, UnknownVerbError
+    from craft_e.schemas.names import MAX_NAME_CHARS, shown
 
+    if len(verb) > MAX_NAME_CHARS:  # checked first: a huge --verb is never processed or echoed
+        fail(f"--verb {shown(verb)} is longer than {MAX_NAME_CHARS} characters")
     if (box is None) == (rois is None):
         fail("give the ROIs either as --box x,y,w,h (repeatable) or as --rois FILE")
     if aff_mode not in ("expected", "argmax"):
@@ -269,12 +273,12 @@ def ground(
         data = {"image": str(image), "image_encoder": encoder.id, **result.to_dict()}
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-        err.print(f"wrote {json_out}", highlight=False)
+        err.print(f"wrote {json_out}", highlight=False, markup=False)
     if plot is not None:
         from craft_e.runtime.plotting import plot_grounding
 
         plot_grounding(rgb, result, plot)
-        err.print(f"wrote {plot}", highlight=False)
+        err.print(f"wrote {plot}", highlight=False, markup=False)
 
 
 @eval_app.command("imagenet")
@@ -328,7 +332,7 @@ def eval_imagenet(
     from craft_e.runtime.evaluation.common import emit_report
 
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
-                lambda msg: err.print(msg, highlight=False))
+                lambda msg: err.print(msg, highlight=False, markup=False))
 
 
 def register_command_modules(modules: list[str] | None = None) -> list[str]:

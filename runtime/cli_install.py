@@ -2,7 +2,7 @@
 
 Exit codes: 0 ok; 1 a package or installed version failed verification (untrusted signer,
 tampered, damaged); 2 bad usage (missing file, busy or foreign install folder, nothing to roll
-back to). The runtime CLI never imports the compiler.
+back to, an older version without --allow-downgrade). The runtime CLI never imports the compiler.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 _err = Console(stderr=True)
 _out = Console()
@@ -26,7 +27,7 @@ IntoOpt = Annotated[
 
 
 def _fail(message: str, code: int) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -42,13 +43,23 @@ def install_cmd(
     keep_all: Annotated[
         bool, typer.Option(help="Keep versions other than current and previous.")
     ] = False,
+    allow_downgrade: Annotated[
+        bool,
+        typer.Option(help="Install an older kb_version of the current KB (refused by default)."),
+    ] = False,
 ) -> None:
     """Verify a signed package and make it the current KB (the old one becomes previous)."""
     from craft_e.runtime.install import InstallError, install
     from craft_e.runtime.package import DestinationError, PackageError
 
     try:
-        result = install(package, into, [str(p) for p in trusted_key], prune=not keep_all)
+        result = install(
+            package,
+            into,
+            [str(p) for p in trusted_key],
+            prune=not keep_all,
+            allow_downgrade=allow_downgrade,
+        )
     except (InstallError, DestinationError) as exc:
         _fail(str(exc), EXIT_BAD_INPUT)
     except PackageError as exc:
@@ -61,6 +72,7 @@ def install_cmd(
         f"installed {result.version} ({how}) -> {into / 'current'}\n"
         f"  previous: {result.previous or '-'}",
         highlight=False,
+        markup=False,
         soft_wrap=True,
     )
 
@@ -78,6 +90,7 @@ def rollback_cmd(into: IntoOpt) -> None:
     _out.print(
         f"rolled back: current -> {result.version}; previous -> {result.previous or '-'}",
         highlight=False,
+        markup=False,
         soft_wrap=True,
     )
 
@@ -110,11 +123,11 @@ def installed_cmd(
         ]
         sys.stdout.write(json.dumps(rows, indent=1) + "\n")
     elif not versions:
-        _out.print(f"nothing installed in {into}", highlight=False)
+        _out.print(f"nothing installed in {into}", highlight=False, markup=False)
     for v in [] if as_json else versions:
         mark = "*" if v.is_current else "-" if v.is_previous else " "
-        state = f"  [red]{v.problem}[/]" if v.problem else ""
-        _out.print(f"{mark} {v.version}{state}", highlight=False, soft_wrap=True)
+        state = f"  [red]{escape(v.problem)}[/]" if v.problem else ""
+        _out.print(f"{escape(mark)} {escape(v.version)}{state}", highlight=False, soft_wrap=True)
     if any(v.problem for v in versions):
         raise typer.Exit(EXIT_CHECK_FAILED)
 

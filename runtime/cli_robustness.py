@@ -12,6 +12,7 @@ from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 _err = Console(stderr=True)
 EXIT_BAD_INPUT = 2
@@ -20,7 +21,7 @@ robustness_app = typer.Typer(help="Robustness of the method to perceptual noise.
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -86,10 +87,10 @@ def robustness_imagenet(
     except (LabelsError, FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
-                lambda msg: _err.print(msg, highlight=False))
+                lambda msg: _err.print(msg, highlight=False, markup=False))
     if plot is not None:
         report.plot(plot)
-        _err.print(f"wrote {plot}", highlight=False)
+        _err.print(f"wrote {plot}", highlight=False, markup=False)
 
 
 def register(app: typer.Typer) -> None:

@@ -73,7 +73,7 @@ def register(app: typer.Typer) -> None:
         encoder = default_encoder(threads)
         grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)])
         err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
-                  f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False)
+                  f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)
         with SimEnv() as env:
             recorder = FrameRecorder(env.client, every=gif_every)
             env.step_hook = recorder
@@ -92,4 +92,4 @@ def register(app: typer.Typer) -> None:
         record = episode_record(spec, result)
         (out / f"{stem}.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
         console.print(describe(result, method), highlight=False, markup=False, soft_wrap=True)
-        err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False)
+        err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False, markup=False)
