@@ -8,6 +8,7 @@ Layout under ``into`` (relative symlinks, so the folder can be moved or rsynced 
     into/current  -> versions/<id>                   what the robot loads
     into/previous -> versions/<id>                   what ``rollback`` returns to
     into/.lock                                       serializes install/rollback (flock)
+    into/.rollback -> versions/<id>                  only during a rollback: the old current
 
 Why this shape: a robot may lose power at any instant. A version folder appears only by the
 rename of a fully verified staging folder (``unpack_package``), and ``current`` changes only by
@@ -15,6 +16,15 @@ rename of a fully verified staging folder (``unpack_package``), and ``current`` 
 instant ``current`` names a complete, verified version — the old one until the final rename,
 the new one after it. Version folders are never modified once named; a crashed install leaves
 only hidden staging folders, swept by the next install.
+
+A rollback has to move two links, and no POSIX call moves two atomically. So it first records
+the old ``current`` in ``.rollback``, then switches ``current``, then ``previous``, then removes
+``.rollback``; a crash anywhere in between is completed by the next ``install`` or ``rollback``
+(before the crash-free path would have diverged), so ``current`` and ``previous`` never end up
+naming the same version with the old one forgotten.
+
+Versions only go up: installing a lower ``kb_version`` of the installed KB is refused unless
+``allow_downgrade`` (``--allow-downgrade``); ``rollback`` is the way back to the previous one.
 
 Load the installed bundle with ``load_bundle(current(into))``: ``current`` resolves the link
 once, so a concurrent switch cannot make one load read files of two versions.
@@ -46,6 +56,7 @@ VERSIONS = "versions"
 CURRENT = "current"
 PREVIOUS = "previous"
 LOCK = ".lock"
+ROLLBACK_JOURNAL = ".rollback"
 _VERSION_NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*-\d+\.\d+\.\d+-[0-9a-f]{12}$")
 
 
@@ -55,6 +66,10 @@ class InstallError(BundleError):
 
 class DamagedVersionError(InstallError):
     """An installed version folder no longer matches its manifest (disk damage, edits)."""
+
+
+class DowngradeError(InstallError):
+    """The package is an older version of the installed KB (``--allow-downgrade`` to force)."""
 
 
 @dataclass(frozen=True)
@@ -171,6 +186,27 @@ def _sweep(into: Path) -> None:
             entry.unlink(missing_ok=True)
 
 
+def _finish_rollback(into: Path) -> None:
+    """Complete a rollback that a crash interrupted (``.rollback`` names the old current).
+
+    Before the switch of ``current`` the journal names the version ``current`` still points to:
+    nothing happened yet, drop the journal. After it, ``previous`` must become the journal's
+    version, exactly what the interrupted rollback would have done next.
+    """
+    journal = into / ROLLBACK_JOURNAL
+    if not journal.is_symlink():
+        return
+    old = _link_target(into, ROLLBACK_JOURNAL)
+    if old is not None and _link_target(into, CURRENT) != old:
+        _point(into, PREVIOUS, old)
+    journal.unlink()
+    _fsync_dir(into)
+
+
+def _semver(text: str) -> tuple[int, ...]:
+    return tuple(int(p) for p in text.split("."))
+
+
 def _prune(into: Path, keep: set[str]) -> list[str]:
     removed: list[str] = []
     for entry in sorted((into / VERSIONS).iterdir()):
@@ -189,25 +225,39 @@ def install(
     *,
     prune: bool = True,
     limits: Limits = DEFAULT_LIMITS,
+    allow_downgrade: bool = False,
 ) -> InstallResult:
     """Verify ``package``, unpack it as a new version, then switch ``current`` to it.
 
     The old ``current`` becomes ``previous``. With ``prune``, versions that are neither current
     nor previous are removed afterwards (a robot's disk is small). Installing the version that is
-    already current changes nothing; re-installing a damaged version folder replaces it.
+    already current changes nothing (the package is still read and checked in full: a damaged
+    package is refused even when its version is installed); re-installing a damaged version
+    folder replaces it. A lower ``kb_version`` of the current KB is refused (``DowngradeError``)
+    unless ``allow_downgrade``.
     """
     package, into = Path(package), Path(into)
     with _locked(into):
         versions = into / VERSIONS
         versions.mkdir(exist_ok=True)
         _sweep(into)
+        _finish_rollback(into)
         verified = verify_package(package, trusted_keys, limits=limits)  # before touching anything
         vid = version_id(verified.manifest)
         target = versions / vid
         old = _link_target(into, CURRENT)
+        if old is not None and not allow_downgrade:
+            _check_not_downgrade(into / VERSIONS / old, verified.manifest, package)
         reused = False
         if target.is_dir() and _verified_folder(target) == verified.manifest:
             reused = True
+            # Read the whole package anyway (extract to a scratch folder, then drop it): a
+            # package that would not unpack must not "install" just because its version is here.
+            scratch = versions / f".{vid}.{secrets.token_hex(4)}.check"
+            try:
+                unpack_package(package, trusted_keys, scratch, limits=limits)
+            finally:
+                shutil.rmtree(scratch, ignore_errors=True)
         else:
             if target.exists() or target.is_symlink():
                 # a damaged copy (never the verified current: that would have matched above)
@@ -225,6 +275,21 @@ def install(
         return InstallResult(vid, target, _link_target(into, PREVIOUS), reused)
 
 
+def _check_not_downgrade(current_folder: Path, new: Manifest, package: Path) -> None:
+    try:
+        installed_manifest = read_manifest(current_folder)
+    except BundleError:
+        return  # a damaged current is replaced, whatever its version
+    if installed_manifest.kb_name != new.kb_name:
+        return
+    if _semver(new.kb_version) < _semver(installed_manifest.kb_version):
+        raise DowngradeError(
+            f"{package}: {new.kb_name} {new.kb_version} is older than the installed "
+            f"{installed_manifest.kb_version}; use `craft rollback` to return to the previous "
+            "version, or pass --allow-downgrade to install it anyway"
+        )
+
+
 def rollback(into: Path | str) -> InstallResult:
     """Switch ``current`` back to ``previous`` (and ``previous`` to the old current).
 
@@ -235,11 +300,17 @@ def rollback(into: Path | str) -> InstallResult:
     if not into.is_dir():
         raise InstallError(f"{into}: no such install folder; run `craft install` first")
     with _locked(into):
+        _finish_rollback(into)
         cur, prev = _link_target(into, CURRENT), _link_target(into, PREVIOUS)
         if prev is None:
             raise InstallError(
                 f"{into}: nothing to roll back to (no previous version); install an older "
                 "package instead"
+            )
+        if prev == cur:
+            raise InstallError(
+                f"{into}: current and previous both name {cur}, so a rollback would change "
+                "nothing (left by a crash of an older craft); install the version you want"
             )
         folder = into / VERSIONS / prev
         if _verified_folder(folder) is None:
@@ -247,9 +318,13 @@ def rollback(into: Path | str) -> InstallResult:
                 f"{folder}: the previous version no longer verifies; re-install its package "
                 "instead of rolling back"
             )
+        if cur is not None:
+            _point(into, ROLLBACK_JOURNAL, cur)  # what previous must become, should we crash
         _point(into, CURRENT, prev)  # the step that matters comes first
         if cur is not None:
             _point(into, PREVIOUS, cur)
+            (into / ROLLBACK_JOURNAL).unlink()
+            _fsync_dir(into)
         return InstallResult(prev, folder, cur, True)
 
 

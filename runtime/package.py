@@ -492,8 +492,15 @@ def _parse_manifest(path: Path, data: bytes, statement: PackageStatement) -> Man
 
 @contextlib.contextmanager
 def _open_package(path: Path) -> Iterator[tuple[IO[bytes], int]]:
+    # O_NONBLOCK: opening a FIFO must not wait for a writer; the type is checked on the opened
+    # descriptor right after, and a regular file reads the same with or without the flag.
     try:
-        handle = path.open("rb")
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        try:
+            handle = os.fdopen(fd, "rb")
+        except BaseException:
+            os.close(fd)
+            raise
     except FileNotFoundError:
         raise _fail(path, "no such file", "check the path of the .craft file") from None
     except IsADirectoryError:
@@ -628,7 +635,7 @@ def _write_member(
     digest = hashlib.sha256()
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
     try:
-        fd = os.open(target, flags, 0o644)
+        fd = os.open(target, flags, 0o666)  # less the umask: 0644 as cp makes it
     except OSError as exc:
         raise _destination_error(target, exc) from None
     with os.fdopen(fd, "wb") as out:
@@ -659,6 +666,12 @@ def _destination_error(target: Path, exc: OSError) -> DestinationError:
     )
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _fsync_dir(folder: Path) -> None:
     with contextlib.suppress(OSError):
         fd = os.open(folder, os.O_RDONLY)
@@ -674,8 +687,12 @@ def unpack_package(
     dest: Path | str,
     *,
     limits: Limits = DEFAULT_LIMITS,
+    mode: int | None = -1,
 ) -> VerifiedPackage:
     """Verify ``path`` and extract it to ``dest`` (which must not exist or be an empty folder).
+
+    ``dest`` gets mode 0777 less the umask (``mode=-1``, e.g. 0755) and its files 0666 less the
+    umask, as ``mkdir`` and ``cp`` would make them; ``mode=None`` keeps the private 0700.
 
     Extraction goes to a hidden sibling staging folder; ``dest`` appears (by one rename) only
     after every file matched the manifest, so a failure or a crash never leaves a partial
@@ -683,6 +700,8 @@ def unpack_package(
     """
     path, dest = Path(path), Path(dest)
     trusted = _trusted_table(trusted_keys)
+    if mode == -1:
+        mode = 0o777 & ~_umask()
     if dest.is_symlink() or (dest.exists() and (not dest.is_dir() or any(dest.iterdir()))):
         raise _fail(dest, "already exists and is not an empty folder", "choose a new destination")
     with _open_package(path) as (handle, size):
@@ -690,6 +709,10 @@ def unpack_package(
         dest.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".unpack", dir=dest.parent))
         try:
+            if mode is not None:
+                # mkdtemp makes 0700; an installed bundle must be readable by the robot's service
+                # user when root installs it (0755 under the usual umask 022).
+                os.chmod(staging, mode)
             try:
                 _extract(path, handle, verified, staging, limits)
             except _ARCHIVE_ERRORS as exc:
@@ -720,7 +743,7 @@ def unpacked(
     """Unpack into a private temporary folder (mode 0700) that is removed on exit."""
     with tempfile.TemporaryDirectory(prefix="craft-package-") as tmp:
         folder = Path(tmp) / "bundle"
-        verified = unpack_package(path, trusted_keys, folder, limits=limits)
+        verified = unpack_package(path, trusted_keys, folder, limits=limits, mode=None)
         yield folder, verified
 
 

@@ -20,6 +20,15 @@ ROIs than ``max_rois`` is 422 naming the bound; a body over ``max_body_bytes`` i
 is parsed. Non-finite numbers are rejected (Python's JSON parser accepts ``NaN``), since one NaN
 would silently poison the ranking.
 
+Numbers must also fit what they become: embedding components and box coordinates beyond
+``MAX_ABS_VALUE`` (e.g. 1e39, which float32 turns into inf) are a 422, never a 500. The image
+endpoint bounds its work before decoding: at most ``max_image_boxes`` boxes (422), images of at
+most ``max_image_pixels`` pixels (413, read from the header before any pixel is decoded), and
+at most ``max_concurrent_images`` decodes at once (503 with ``Retry-After`` at once, instead of
+queueing gigabytes). An ROI whose grasp scores are all 0.0 cannot be picked up: it is excluded
+with that reason, never chosen. ``/docs`` is a self-contained page (no CDN scripts: the robot has
+no network); ``/openapi.json`` is the machine-readable schema.
+
 Per-request weights (``alpha``, ``beta``, ``gamma``) do not rebuild anything: they only scale
 the three energies, so a shallow copy of the prebuilt grounder with other weights shares every
 precomputed matrix (see ``GroundingService.grounder``).
@@ -29,12 +38,13 @@ from __future__ import annotations
 
 import base64
 import binascii
+import html
 import io
 import json
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
@@ -43,7 +53,7 @@ import numpy.typing as npt
 from fastapi import FastAPI, HTTPException, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -67,7 +77,15 @@ MAX_GRASPS_PER_ROI = 1024
 DEFAULT_MAX_BODY_BYTES = 2 * 1024 * 1024
 DEFAULT_MAX_IMAGE_BODY_BYTES = 24 * 1024 * 1024
 #: Decoded image size bound (pixels): a PNG of a few KB can claim gigapixels (decompression bomb).
-MAX_IMAGE_PIXELS = 40_000_000
+#: 16.7 MP (4096 x 4096) is more than any robot camera sends; one decode is then <= 50 MB RGB.
+MAX_IMAGE_PIXELS = 4096 * 4096
+#: Boxes per /ground_image request: each crop costs an encoder forward pass (tens of ms).
+DEFAULT_MAX_IMAGE_BOXES = 16
+#: Image decodes running at once; more get 503 + Retry-After instead of piling up in memory.
+DEFAULT_MAX_CONCURRENT_IMAGES = 2
+#: Largest magnitude of an embedding component or a box coordinate. float32 overflows to inf
+#: above 3.4e38; embeddings are unit-scale and boxes are pixels, so 1e6 is generous for both.
+MAX_ABS_VALUE = 1e6
 IMAGE_FORMATS = ("PNG", "JPEG")
 MAX_VERB_CHARS = 100
 MAX_LABEL_CHARS = 200
@@ -94,9 +112,20 @@ Box = tuple[float, float, float, float]
 
 
 def _check_box(box: Box) -> Box:
+    if any(abs(v) > MAX_ABS_VALUE for v in box):
+        raise ValueError(f"box_xywh: coordinates must lie within +-{MAX_ABS_VALUE:g} pixels")
     if box[2] <= 0 or box[3] <= 0:
         raise ValueError(f"box_xywh {list(box)}: width and height must be > 0 (pixels)")
     return box
+
+
+def _check_embedding(values: list[float] | None) -> list[float] | None:
+    if values is not None and any(abs(v) > MAX_ABS_VALUE for v in values):
+        raise ValueError(
+            f"image_embedding: components must lie within +-{MAX_ABS_VALUE:g} (float32 "
+            "overflows above 3.4e38; embeddings are unit-scale)"
+        )
+    return values
 
 
 def _check_scores(scores: list[float]) -> list[float]:
@@ -125,6 +154,7 @@ class RoiIn(BaseModel):
 
     _box = field_validator("box_xywh")(_check_box)
     _scores = field_validator("grasp_scores")(_check_scores)
+    _embedding = field_validator("image_embedding")(_check_embedding)
 
 
 class GroundRequest(BaseModel):
@@ -186,7 +216,16 @@ class GroundingService:
     image_encoder: Any | None
     max_rois: int
     started: float = field(default_factory=time.time)
+    max_image_boxes: int = DEFAULT_MAX_IMAGE_BOXES
+    max_image_pixels: int = MAX_IMAGE_PIXELS
+    max_concurrent_images: int = DEFAULT_MAX_CONCURRENT_IMAGES
     _encoder_lock: threading.Lock = field(default_factory=threading.Lock)
+    _image_slots: threading.BoundedSemaphore | None = field(default=None, repr=False)
+
+    def image_slot(self) -> threading.BoundedSemaphore:
+        if self._image_slots is None:
+            self._image_slots = threading.BoundedSemaphore(self.max_concurrent_images)
+        return self._image_slots
 
     @property
     def dim(self) -> int:
@@ -243,16 +282,23 @@ class GroundingService:
                             image_embedding=emb, label=r.label))
         return rois
 
+    def check_image_boxes(self, count: int) -> None:
+        self.check_rois(count, "boxes")
+        if count > self.max_image_boxes:
+            raise _invalid(["boxes"], f"{count} boxes in one image request; this server embeds at "
+                           f"most {self.max_image_boxes} crops per request (split the request, or "
+                           "embed crops client-side and POST /ground)", "too_many_boxes")
+
     def rois_from_image(self, req: GroundImageRequest) -> tuple[list[ROI], dict[str, int]]:
         """Decode the image, crop every box, embed the crops in one batch."""
         from craft_e.runtime.encoders.image import crop_box
 
-        self.check_rois(len(req.boxes), "boxes")
+        self.check_image_boxes(len(req.boxes))
         if self.image_encoder is None:
             raise _error(503, "image_encoder_disabled",
                          "this server runs without an image encoder (craft serve --image-encoder "
                          "none); embed crops client-side and POST /ground")
-        rgb = decode_image(req.image_b64)
+        rgb = decode_image(req.image_b64, self.max_image_pixels)
         crops = []
         for i, b in enumerate(req.boxes):
             try:
@@ -267,6 +313,11 @@ class GroundingService:
 
     def ground(self, verb: str, rois: list[ROI], options: GroundOptions | None) -> dict[str, Any]:
         grounder = self.grounder(options)
+        # All-zero grasp scores mean no feasible grasp: E_grasp would be clipped to -log(1e-6)
+        # and a strong affordance could still make the ROI the choice. Exclude it instead.
+        no_grasp = {i for i, r in enumerate(rois) if r.grasp_scores and max(r.grasp_scores) <= 0.0}
+        if no_grasp:
+            rois = [replace(r, grasp_scores=[]) if i in no_grasp else r for i, r in enumerate(rois)]
         try:
             result = grounder.ground(verb, rois)
         except UnknownVerbError as exc:
@@ -274,7 +325,12 @@ class GroundingService:
                          close_matches=exc.close_matches) from None
         except ValueError as exc:  # anything else the grounder refuses is the input's fault
             raise _error(422, "invalid_input", str(exc)) from None
-        return grounding_json(result, self.bundle, options)
+        data = grounding_json(result, self.bundle, options)
+        for entry in data["excluded"]:
+            if entry["index"] in no_grasp:
+                entry["reason"] = ("every grasp score is 0.0: no feasible grasp, the robot cannot "
+                                   "pick it up")
+        return data
 
 
 def grounding_json(result: Grounding, bundle: Bundle, options: GroundOptions | None) -> dict[str, Any]:
@@ -292,8 +348,9 @@ def grounding_json(result: Grounding, bundle: Bundle, options: GroundOptions | N
     return data
 
 
-def decode_image(b64: str) -> npt.NDArray[np.uint8]:
-    """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem otherwise."""
+def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> npt.NDArray[np.uint8]:
+    """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem otherwise (413: too many
+    pixels, judged from the header before anything is decoded)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -305,9 +362,10 @@ def decode_image(b64: str) -> npt.NDArray[np.uint8]:
             if img.format not in IMAGE_FORMATS:
                 raise _invalid(["image_b64"], f"image format {img.format}; send PNG or JPEG",
                                "image_format")
-            if img.width * img.height > MAX_IMAGE_PIXELS:
-                raise _invalid(["image_b64"], f"image is {img.width}x{img.height}; at most "
-                               f"{MAX_IMAGE_PIXELS} pixels", "image_too_large")
+            if img.width * img.height > max_pixels:
+                raise _error(413, "image_too_large", f"image is {img.width}x{img.height} pixels; "
+                             f"this server decodes at most {max_pixels} pixels (downscale it)",
+                             limit_pixels=max_pixels)
             return np.asarray(img.convert("RGB"), dtype=np.uint8)  # [H, W, 3]
     except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
         raise _invalid(["image_b64"], f"not a readable PNG/JPEG ({exc})", "image_decode") from None
@@ -442,14 +500,27 @@ def create_app(
     max_body_bytes: int = DEFAULT_MAX_BODY_BYTES,
     max_image_body_bytes: int = DEFAULT_MAX_IMAGE_BODY_BYTES,
     temperature: float = DEFAULT_TEMPERATURE,
+    max_image_boxes: int | None = None,
+    max_image_pixels: int | None = None,
+    max_concurrent_images: int | None = None,
 ) -> FastAPI:
     """The FastAPI app over a verified bundle (loaded here, before any request); the keyword
-    arguments other than the body limits are ``build_service``'s (ignored for a service)."""
+    arguments other than the body and image limits are ``build_service``'s (ignored for a
+    service). Image limits left as None keep the service's (the module defaults)."""
     service = kb if isinstance(kb, GroundingService) else build_service(
         kb, image_encoder=image_encoder, max_rois=max_rois, open_vocab=open_vocab,
         trusted_keys=trusted_keys, temperature=temperature)
+    if max_image_boxes is not None:
+        service.max_image_boxes = max_image_boxes
+    if max_image_pixels is not None:
+        service.max_image_pixels = max_image_pixels
+    if max_concurrent_images is not None:
+        service.max_concurrent_images = max_concurrent_images
+        service._image_slots = None
     m = service.bundle.manifest
-    app = FastAPI(title="CRAFT-E grounding", version=m.kb_version,
+    # docs_url/redoc_url None: FastAPI's pages load Swagger UI / ReDoc from a CDN, which a robot
+    # without network cannot reach; /docs below is a self-contained page instead.
+    app = FastAPI(title="CRAFT-E grounding", version=m.kb_version, docs_url=None, redoc_url=None,
                   description=f"Grounds verbs in scenes with KB {m.kb_name}@{m.kb_version} "
                               f"(content sha256 {m.content_sha256[:16]}...). No network access.")
     app.state.service = service
@@ -483,14 +554,48 @@ def create_app(
         Decoding and the encoder's forward pass (tens of ms per crop) run in the thread pool so
         that ``/ground`` and ``/healthz`` keep answering meanwhile.
         """
-        req = await _parse(request, GroundImageRequest)
-        rois, size = await run_in_threadpool(service.rois_from_image, req)
+        slot = service.image_slot()
+        if not slot.acquire(blocking=False):
+            return JSONResponse({"detail": {
+                "error": "busy", "message": f"{service.max_concurrent_images} images are being "
+                "decoded already; retry in a moment", "limit": service.max_concurrent_images}},
+                503, headers={"Retry-After": "1"})
+        try:
+            req = await _parse(request, GroundImageRequest)
+            service.check_image_boxes(len(req.boxes))  # before decoding anything
+            rois, size = await run_in_threadpool(service.rois_from_image, req)
+        finally:
+            slot.release()
         data = service.ground(req.verb, rois, req.options)
         data["image"] = {**size, "encoder": getattr(service.image_encoder, "id", None)}
         return _json(data)
 
+    @app.get("/docs", include_in_schema=False, response_class=HTMLResponse)
+    def docs() -> HTMLResponse:
+        """A self-contained API page: no scripts, no CDN, works with no network."""
+        return HTMLResponse(_docs_page(app))
+
     _document_bodies(app, (GroundRequest, GroundImageRequest))
     return app
+
+
+def _docs_page(app: FastAPI) -> str:
+    """Endpoints and their summaries from the OpenAPI schema, as plain HTML (no assets)."""
+    schema = app.openapi()
+    rows = []
+    for path, methods in schema.get("paths", {}).items():
+        for method, op in methods.items():
+            summary = html.escape(str(op.get("summary", "")))
+            text = html.escape(str(op.get("description", ""))).replace("\n\n", "<br>")
+            rows.append(f"<tr><td><code>{method.upper()} {html.escape(path)}</code></td>"
+                        f"<td><b>{summary}</b><br>{text}</td></tr>")
+    info = schema.get("info", {})
+    return ("<!doctype html><html><head><meta charset='utf-8'><title>"
+            f"{html.escape(str(info.get('title', '')))}</title></head><body>"
+            f"<h1>{html.escape(str(info.get('title', '')))} {html.escape(str(info.get('version', '')))}</h1>"
+            f"<p>{html.escape(str(info.get('description', '')))}</p>"
+            "<p>Machine-readable schema: <a href='/openapi.json'>/openapi.json</a>.</p>"
+            f"<table border='1' cellpadding='4'>{''.join(rows)}</table></body></html>")
 
 
 ModelT = TypeVar("ModelT", bound=BaseModel)

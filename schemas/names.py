@@ -190,6 +190,18 @@ _IRREGULAR = {
 
 _SEPARATORS = re.compile(r"[_\s]+")
 _ALLOWED = re.compile(r"^[a-z0-9][a-z0-9 '\-./&+]*$")
+#: Longest name accepted (a verb, property or object is a few words). Checked before any other
+#: work, and a rejected name is echoed only in part, so a 10 MB "verb" costs nothing and never
+#: comes back in full in an error message or a log.
+MAX_NAME_CHARS = 100
+_ECHO_CHARS = 40
+
+
+def shown(raw: str, limit: int = _ECHO_CHARS) -> str:
+    """``repr`` of a user's name, cut to ``limit`` characters with the full length noted."""
+    if len(raw) <= limit:
+        return repr(raw)
+    return f"{raw[:limit]!r}... ({len(raw)} characters)"
 
 
 def _singular(word: str) -> str:
@@ -212,14 +224,19 @@ def _singular(word: str) -> str:
 def normalize_name(raw: str, *, singularize: bool = True) -> str:
     """Normalize a verb, property or object name: lowercase, spaces, singular last word.
 
-    Raises ``ValueError`` for names that are empty after normalization or carry characters that
-    would make a poor graph id (the caller names the file and line).
+    Raises ``ValueError`` for names that are empty after normalization, longer than
+    ``MAX_NAME_CHARS``, or carry characters that would make a poor graph id (the caller names
+    the file and line).
     """
+    if len(raw) > 4 * MAX_NAME_CHARS:  # surrounding whitespace aside, far too long: no work
+        raise ValueError(f"name {shown(raw)} is longer than {MAX_NAME_CHARS} characters")
     name = _SEPARATORS.sub(" ", raw.strip().lower()).strip()
     if not name:
         raise ValueError("empty name")
+    if len(name) > MAX_NAME_CHARS:
+        raise ValueError(f"name {shown(raw)} is longer than {MAX_NAME_CHARS} characters")
     if not _ALLOWED.match(name):
-        raise ValueError(f"name {raw!r} contains characters outside [a-z0-9 '-./&+]")
+        raise ValueError(f"name {shown(raw, 60)} contains characters outside [a-z0-9 '-./&+]")
     if singularize:
         words = name.split(" ")
         words[-1] = _singular(words[-1])

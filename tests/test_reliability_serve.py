@@ -1,0 +1,148 @@
+"""``craft serve`` reliability probes (issue 12, items 3, 4 and 13).
+
+Out-of-range floats are a 422 (not a 500); image work is bounded before decoding (413/422/503,
+fast); an ROI with all-zero grasp scores is never chosen; ``/docs`` loads nothing from a CDN.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from fastapi.testclient import TestClient
+from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
+
+from craft_e.runtime.serve import GroundingService, build_service, create_app
+
+
+class FakeImageEncoder:
+    """Embeds every crop as the bundle's 'banana' (no torch): the limits are what is tested."""
+
+    id = "fake-image"
+    text_encoder_id = "minilm-l6-v2"
+
+    def __init__(self, vector: npt.NDArray[np.float32]) -> None:
+        self.vector = vector
+        self.calls = 0
+
+    def embed_images(self, crops: list[Any]) -> npt.NDArray[np.float32]:
+        self.calls += 1
+        return np.stack([self.vector for _ in crops])
+
+
+@pytest.fixture(scope="module")
+def service(runtime_kbs: RuntimeKBs) -> GroundingService:
+    svc = build_service(runtime_kbs.kb)
+    b = svc.bundle
+    svc.image_encoder = FakeImageEncoder(b.embeddings["object"][b.object_index["banana"]])
+    return svc
+
+
+@pytest.fixture(scope="module")
+def client(service: GroundingService) -> Iterator[TestClient]:
+    with TestClient(create_app(service), raise_server_exceptions=False) as c:
+        yield c
+
+
+def emb(service: GroundingService, name: str) -> list[float]:
+    b = service.bundle
+    out: list[float] = b.embeddings["object"][b.object_index[name]].tolist()
+    return out
+
+
+def png(width: int, height: int) -> str:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.new("RGB", (width, height)).save(buf, format="PNG")
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+# -- item 3: finite values beyond float32 ------------------------------------------------------
+
+
+@pytest.mark.parametrize("value", [1e39, 1e308, -3.5e38])
+def test_huge_embedding_values_are_422_not_500(
+    client: TestClient, service: GroundingService, value: float
+) -> None:
+    vector = emb(service, "hatchet")
+    vector[0] = value
+    body = {"verb": "cut", "rois": [{"box_xywh": [0, 0, 5, 5], "grasp_scores": [0.9], "image_embedding": vector}]}
+    r = client.post("/ground", json=body)
+    assert r.status_code == 422, r.text
+    assert "image_embedding" in r.text
+
+
+def test_huge_box_values_are_422(client: TestClient, service: GroundingService) -> None:
+    body = {"verb": "cut", "rois": [{"box_xywh": [0, 0, 1e39, 5], "grasp_scores": [0.9],
+                                     "image_embedding": emb(service, "hatchet")}]}
+    assert client.post("/ground", json=body).status_code == 422
+
+
+# -- item 4: bounded image work ----------------------------------------------------------------
+
+
+def test_a_huge_image_is_413_before_decoding(client: TestClient) -> None:
+    big = png(6000, 6000)  # ~100 KB of PNG, 36 MP decoded
+    start = time.perf_counter()
+    r = client.post("/ground_image", json={"verb": "cut", "image_b64": big, "boxes": [{"box_xywh": [0, 0, 10, 10]}]})
+    assert r.status_code == 413, r.text
+    assert r.json()["detail"]["error"] == "image_too_large"
+    assert time.perf_counter() - start < 3.0
+
+
+def test_too_many_boxes_is_422_before_decoding(client: TestClient, service: GroundingService) -> None:
+    encoder = service.image_encoder
+    before = encoder.calls
+    boxes = [{"box_xywh": [0, 0, 64, 64], "grasp_scores": [0.5]}] * (service.max_image_boxes + 1)
+    r = client.post("/ground_image", json={"verb": "cut", "image_b64": png(64, 64), "boxes": boxes})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["type"] == "too_many_boxes"
+    assert encoder.calls == before
+
+
+def test_concurrent_decodes_beyond_the_bound_are_503(client: TestClient, service: GroundingService) -> None:
+    slot = service.image_slot()
+    held = [slot.acquire(blocking=False) for _ in range(service.max_concurrent_images)]
+    assert all(held)
+    try:
+        r = client.post("/ground_image", json={"verb": "cut", "image_b64": png(64, 64),
+                                               "boxes": [{"box_xywh": [0, 0, 64, 64], "grasp_scores": [0.5]}]})
+        assert r.status_code == 503, r.text
+        assert r.headers["retry-after"] == "1"
+    finally:
+        for _ in held:
+            slot.release()
+    r = client.post("/ground_image", json={"verb": "cut", "image_b64": png(64, 64),
+                                           "boxes": [{"box_xywh": [0, 0, 64, 64], "grasp_scores": [0.5]}]})
+    assert r.status_code == 200, r.text
+
+
+# -- item 13: zero grasp scores, offline docs --------------------------------------------------
+
+
+def test_an_roi_with_all_zero_grasp_scores_is_never_chosen(client: TestClient, service: GroundingService) -> None:
+    rois = [
+        {"box_xywh": [0, 0, 5, 5], "grasp_scores": [0.0, 0.0], "image_embedding": emb(service, "hatchet"), "label": "hatchet"},
+        {"box_xywh": [5, 0, 5, 5], "grasp_scores": [0.2], "image_embedding": emb(service, "banana"), "label": "banana"},
+    ]
+    r = client.post("/ground", json={"verb": "cut", "rois": rois})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["chosen"] == 1 and [x["index"] for x in d["ranked"]] == [1]
+    assert d["excluded"][0]["index"] == 0 and "0.0" in d["excluded"][0]["reason"]
+
+
+def test_docs_page_loads_nothing_from_the_network(client: TestClient) -> None:
+    r = client.get("/docs")
+    assert r.status_code == 200
+    page = r.text.lower()
+    assert "/ground" in page and "<script" not in page and "http" not in page.replace("/openapi.json", "")
+    assert client.get("/redoc").status_code == 404
+    assert client.get("/openapi.json").status_code == 200
