@@ -30,7 +30,7 @@ from craft_e.compiler.draft import KnowledgeDraft
 from craft_e.compiler.embed import EmbeddingCache
 from craft_e.compiler.emit import check_out_path, file_digest, write_bundle
 from craft_e.compiler.graph import build_graph, check_draft, coverage, graph_json, weight_matrices
-from craft_e.compiler.llm_knowledge import direct_llm_draft, llm_property_draft
+from craft_e.compiler.llm_knowledge import add_direct_paths, direct_llm_draft, llm_property_draft
 from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION
 from craft_e.compiler.rdf import graph_turtle
 from craft_e.compiler.sources.llm import LLMSource, Transport
@@ -48,7 +48,7 @@ from craft_e.schemas.v1.bundle import (
     sealed,
 )
 
-KnowledgeMode = Literal["llm", "conceptnet", "direct"]
+KnowledgeMode = Literal["llm", "conceptnet", "direct", "llm+direct"]
 VERB_TEMPLATE = "something to {verb}"
 FORBIDDEN_ENERGY = 1.0  # "never pick X for V": the worst possible E_aff
 
@@ -110,9 +110,15 @@ def _source_pass(
         return direct_llm_draft(
             source, verbs.names, objects.names, progress, version=version, glosses=glosses
         )
-    return llm_property_draft(
+    draft = llm_property_draft(
         source, verbs.names, objects.names, progress, version=version, glosses=glosses
     )
+    if config.mode == "llm+direct":
+        direct = direct_llm_draft(
+            source, verbs.names, objects.names, progress, version=version, glosses=glosses
+        )
+        add_direct_paths(draft, direct)
+    return draft
 
 
 def _overrides_pass(config: BuildConfig, draft: KnowledgeDraft) -> None:

@@ -99,7 +99,8 @@ def build(
     mode: Annotated[
         str,
         typer.Option(
-            help="llm (two-stage property KB) | conceptnet (CRAFT baseline) | direct (direct-LLM baseline)."
+            help="llm (two-stage property KB) | conceptnet (CRAFT baseline) | direct (direct-LLM "
+            "baseline) | llm+direct (property KB plus the direct answer as one labelled path)."
         ),
     ] = "llm",
     conceptnet: Annotated[
@@ -149,8 +150,8 @@ def build(
 
     if provider not in PROVIDERS:
         fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")
-    if mode not in ("llm", "conceptnet", "direct"):
-        fail(f"unknown mode {mode!r}; choose llm, conceptnet or direct")
+    if mode not in ("llm", "conceptnet", "direct", "llm+direct"):
+        fail(f"unknown mode {mode!r}; choose llm, conceptnet, direct or llm+direct")
     transport = None
     if provider != "replay":
         from craft_e.compiler.sources.transports import make_transport

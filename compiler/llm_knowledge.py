@@ -315,3 +315,31 @@ def direct_llm_draft(
         )
     )
     return draft
+
+
+DIRECT_PATH = "used to {verb}"
+
+
+def add_direct_paths(draft: KnowledgeDraft, direct: KnowledgeDraft) -> None:
+    """Add the direct answer as one more labelled path: verb -> "used to <verb>" -> object.
+
+    The issue's option (mode ``llm+direct``): the objects a direct answer names for a verb
+    become one helpful property of that verb (w_vp 1.0, w_po = the answer's confidence), so the
+    property paths and the direct answer are scored together and every choice still says which
+    path carried it.
+    """
+    stage = "direct_paths"
+    for verb, props in direct.verb_props.items():
+        for prop, link in props.items():
+            name = DIRECT_PATH.format(verb=verb)
+            draft.verb_props.setdefault(verb, {})[name] = Link(
+                link.weight, link.provenance, "direct", role="helpful"
+            )
+            draft.definitions[name] = f"named by a direct answer to which objects afford {verb!r}"
+            draft.prop_objs[name] = dict(direct.prop_objs.get(prop, {}))
+            draft.count(stage, "edges kept", len(draft.prop_objs[name]))
+    for counter_stage, counts in direct.counters.items():
+        for what, n in counts.items():
+            draft.count(counter_stage, what, n)
+    draft.drops.extend(direct.drops)
+    draft.sources.extend(direct.sources)

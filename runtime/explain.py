@@ -37,11 +37,16 @@ class Explanation:
     forbidden: bool
     rank: int  # 1-based rank of the object among all the KB's objects for this verb
     n_objects: int
+    gloss: str = ""  # the sense the object was asked in (prompt v2 bundles)
+    definitions: dict[str, str] | None = None  # property -> its one-line definition (v2)
+    roles: dict[str, str] | None = None  # property -> "required" | "helpful" for this verb (v2)
 
     def render(self) -> str:
         """Human-readable: E_aff, rank, then each path strongest first with short record ids."""
         lines = [f"{self.verb} -> {self.obj} in {self.kb}: E_aff = {self.e_aff:+.4f} "
                  f"({self.energy_form}, tau = {self.tau:g}); rank {self.rank} of {self.n_objects} objects"]
+        if self.gloss:
+            lines.append(f"{self.obj}: {self.gloss}")
         if self.forbidden:
             lines.append(f"forbidden: the KB marks {self.obj!r} as never to be picked for {self.verb!r} "
                          "(E_aff set to the maximum, 1.0)")
@@ -49,7 +54,18 @@ class Explanation:
             lines.append(f"no path: no property of {self.verb!r} links to {self.obj!r} with w_po >= {self.tau:g}")
         for p in sorted(self.paths, key=lambda p: (-(p.w_vp + p.w_po), p.prop)):
             records = ", ".join(k[:12] for k in p.provenance)
-            lines.append(f"  {p.verb} -({p.w_vp:.2f})-> {p.prop} -({p.w_po:.2f})-> {p.obj}   [records {records}]")
+            role = (self.roles or {}).get(p.prop)
+            tag = f" ({role})" if role else ""
+            lines.append(f"  {p.verb} -({p.w_vp:.2f})-> {p.prop}{tag} -({p.w_po:.2f})-> {p.obj}   [records {records}]")
+            definition = (self.definitions or {}).get(p.prop)
+            if definition:
+                lines.append(f"      {p.prop}: {definition}")
+        missing = [
+            prop for prop, role in sorted((self.roles or {}).items())
+            if role == "required" and prop not in {p.prop for p in self.paths}
+        ]
+        if missing:
+            lines.append(f"lacks required: {', '.join(missing)}")
         return "\n".join(lines)
 
 
@@ -75,8 +91,20 @@ def explain_pair(bundle: Bundle, verb: str, obj: str) -> Explanation:
     o = _resolve("object", obj, m.objects, kb)
     row = bundle.energy[bundle.verb_index[v]]  # [O]
     e = float(row[bundle.object_index[o]])
+    nodes = {str(n.get("id")): n for n in bundle.graph.get("nodes", [])}
+    roles = {
+        str(edge["target"]).removeprefix("prop:"): str(edge["role"])
+        for edge in bundle.graph.get("edges", [])
+        if edge.get("source") == f"verb:{v}" and "role" in edge
+    }
+    definitions = {
+        prop: str(nodes[f"prop:{prop}"]["definition"])
+        for prop in roles
+        if "definition" in nodes.get(f"prop:{prop}", {})
+    }
     return Explanation(
         verb=v, obj=o, kb=kb, e_aff=e, energy_form=m.energy.form, tau=m.energy.tau,
         paths=bundle.paths(v, o), forbidden=(v, o) in set(forbidden_pairs(bundle.graph)),
         rank=int((row < e).sum()) + 1, n_objects=len(m.objects),
+        gloss=str(nodes.get(f"obj:{o}", {}).get("gloss", "")), definitions=definitions, roles=roles,
     )
