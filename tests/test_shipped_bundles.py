@@ -17,14 +17,16 @@ import pytest
 
 from craft_e.compiler.build import BuildConfig, KnowledgeMode, build
 from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
+from craft_e.runtime.energies import EnergyForm
 from craft_e.schemas.v1.bundle import BUNDLE_FILES, MANIFEST_FILE
 
-#: name -> (mode, prompt version), as scripts/build_kbs builds them.
-SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"]]] = {
-    "craft-e-default": ("llm", "v2"),
-    "craft-e-v1": ("llm", "v1"),
-    "direct-llm": ("direct", "v2"),
-    "conceptnet": ("conceptnet", "v2"),
+#: name -> (mode, prompt version, E_aff form), as scripts/build_kbs builds them.
+SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"], EnergyForm]] = {
+    "craft-e-default": ("llm", "v2", "specificity"),
+    "craft-e-hybrid": ("llm+direct", "v2", "normalized-product"),
+    "craft-e-v1": ("llm", "v1", "sum-tanh"),
+    "direct-llm": ("direct", "v2", "sum-tanh"),
+    "conceptnet": ("conceptnet", "v2", "sum-tanh"),
 }
 
 
@@ -40,9 +42,10 @@ def cold_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize("name", list(SHIPPED))
 def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp_path: Path) -> None:
-    mode, prompts = SHIPPED[name]
+    mode, prompts, form = SHIPPED[name]
     config = BuildConfig(
         prompt_version=prompts,
+        energy_form=form,
         verbs_file=VOCAB_DIR / "union_verbs.txt",
         objects_file=VOCAB_DIR / "union_objects.txt",
         out=tmp_path / name,
