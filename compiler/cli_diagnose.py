@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -46,7 +46,7 @@ def register(app: typer.Typer) -> None:
             )
         except (BundleError, ValueError) as exc:
             fail(str(exc))
-        columns = {
+        columns: dict[str, dict[str, Any]] = {
             form: bundle_diagnostics(kb, affordance_energy_in_form(kb, form)) for form in forms
         }
         if format == "json":

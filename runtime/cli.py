@@ -57,6 +57,7 @@ COMMAND_MODULES: list[str] = [
     "craft_e.runtime.cli_serve",
     "craft_e.runtime.cli_robustness",
     "craft_e.runtime.evaluation.cli_zhu",
+    "craft_e.runtime.evaluation.cli_kb",
 ]
 
 err = Console(stderr=True)

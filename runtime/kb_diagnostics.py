@@ -105,7 +105,8 @@ def discrimination_diagnostics(
     shares = [_r(c / max(n_v, 1)) for c in in_top.tolist()]  # [O]
     hub_order = sorted(range(n_o), key=lambda i: (-shares[i], objects[i]))
     hubs = [{"object": objects[i], "top_k_share": shares[i]} for i in hub_order[:n_hubs] if shares[i] > 0]
-    linked = ((w_po >= tau) & (w_po > 0)).any(axis=1)  # [P]
+    linked_arr: npt.NDArray[np.bool_] = np.asarray(((w_po >= tau) & (w_po > 0)).any(axis=1), dtype=bool)
+    linked: list[bool] = linked_arr.tolist()  # [P]
     margin_values = list(margins.values())
     return {
         "affordant_share": _r((e < 0.0).sum() / cells),
@@ -113,7 +114,9 @@ def discrimination_diagnostics(
         "top_k": top_k,
         "hubs": hubs,
         "max_hub_share": hubs[0]["top_k_share"] if hubs else 0.0,
-        "properties_reaching_no_object": sorted(p for p, ok in zip(properties, linked, strict=True) if not ok),
+        "properties_reaching_no_object": sorted(
+            p for p, ok in zip(properties, linked, strict=True) if not ok
+        ),
         "margin_rank": margin_rank,
         "margin_median": _r(float(np.median(margin_values))) if margin_values else 0.0,
         "margins": dict(sorted(margins.items())),
