@@ -64,14 +64,41 @@ def test_episodes_follow_the_protocol() -> None:
         assert all(len(set(row)) == 5 for row in classes.tolist())  # distinct classes
         if s.setting == "single":
             assert (s.relevant.sum(axis=1) == 1).all()
-        else:
-            assert (s.relevant.sum(axis=1) >= 1).all()
+        else:  # 2-3 affording images among 5 (a verb with 2 affording classes can only have 2)
+            assert set(s.relevant.sum(axis=1).tolist()) <= {2, 3}
+    counts = {int(n) for s in sets if s.setting == "multi" for n in s.relevant.sum(axis=1)}
+    assert counts == {2, 3}
     again, _ = make_episodes(labels, data, episodes=50, seed=3)
     assert all((a.images == b.images).all() for a, b in zip(sets, again, strict=True))
     fewer, _ = make_episodes({"cut": labels["cut"]}, data, episodes=50, seed=3)
     assert (fewer[0].images == sets[0].images).all()  # a verb's episodes do not depend on others
     other, _ = make_episodes(labels, data, episodes=50, seed=4)
     assert not (other[0].images == sets[0].images).all()
+
+
+def test_chance_metrics_by_hand() -> None:
+    from craft_e.runtime.evaluation.imagenet import chance_metrics
+
+    rel = np.array([[True, False, False, False, False], [True, True, False, False, False],
+                    [True, True, True, False, False]])  # fmt: skip
+    got = chance_metrics(rel)
+    np.testing.assert_allclose(got["top1"], [1 / 5, 2 / 5, 3 / 5], rtol=1e-6)
+    np.testing.assert_allclose(got["top2"], [2 / 5, 1 - 3 / 10, 1 - 1 / 10], rtol=1e-6)
+    # one relevant: mean of 1/i over 5 ranks; two: P(first at i) = (5-i)/10 -> 4/10 + 3/20 + 2/30 + 1/40
+    np.testing.assert_allclose(got["mrr"][:2], [(1 + 1 / 2 + 1 / 3 + 1 / 4 + 1 / 5) / 5,
+                                                0.4 + 0.15 + 2 / 30 + 1 / 40], rtol=1e-6)  # fmt: skip
+    d = 1 / np.log2(np.arange(2, 7))
+    np.testing.assert_allclose(got["ndcg"], [r / 5 * d.sum() / d[:r].sum() for r in (1, 2, 3)], rtol=1e-6)
+    # a random ranking's expected metrics match a brute-force average over all orderings
+    from itertools import permutations
+
+    from craft_e.runtime.evaluation.common import ndcg as ndcg_of
+    from craft_e.runtime.evaluation.common import reciprocal_rank as rr_of
+
+    perms = np.array(list(permutations(range(5))), dtype=float)  # [120, 5] energies
+    row = np.repeat(rel[1:2], len(perms), axis=0)
+    assert float(rr_of(perms, row).mean()) == pytest.approx(float(got["mrr"][1]), rel=1e-6)
+    assert float(ndcg_of(perms, row).mean()) == pytest.approx(float(got["ndcg"][1]), rel=1e-6)
 
 
 def test_metrics_by_hand() -> None:
@@ -93,7 +120,10 @@ def test_eval_is_deterministic_and_metrics_in_unit_interval(runtime_kbs: Runtime
     assert a.to_dict() == b.to_dict()
     assert list((tmp_path / "enc").glob("images.*.safetensors"))
     names = [r.name for r in a.results]
-    assert names == ["CRAFT-E", "direct-LLM", "alignment-only", "affordance-only"]
+    assert names == ["chance", "label oracle", "CRAFT-E", "direct-LLM", "alignment-only", "affordance-only"]
+    by_name = {r.name: r.metrics for r in a.results}
+    assert by_name["label oracle"] == {"top1": 1.0, "top2": 1.0, "mrr": 1.0, "ndcg": 1.0}
+    assert by_name["chance"]["top1"] == pytest.approx(0.2) and by_name["chance"]["top2"] == pytest.approx(0.4)
     assert [s.name for s in a.skipped] == ["CRAFT"] and "bundle unavailable" in a.skipped[0].reason
     for r in a.results:
         assert set(r.metrics) == {"top1", "top2", "mrr", "ndcg"}
@@ -106,6 +136,7 @@ def test_eval_is_deterministic_and_metrics_in_unit_interval(runtime_kbs: Runtime
     assert c.to_dict()["methods"] != a.to_dict()["methods"]
     md = a.to_markdown()
     assert "| CRAFT-E |" in md and "CRAFT** skipped" in md
+    assert "| chance |" in md and "| label oracle |" in md and "One photo per class" in md
     assert a.to_dict()["config"]["labels_sha256"]
 
 
@@ -114,5 +145,5 @@ def test_verbs_missing_from_a_bundle_use_the_flagged_fallback(runtime_kbs: Runti
     labels.write_text(json.dumps({"drink from": ["cup", "teapot"], "cut": ["cleaver"]}))
     rep = evaluate_imagenet(labels, methods=[MethodSpec("CRAFT-E", "", runtime_kbs.kb)], episodes=10,
                             pool=pool(runtime_kbs), encoder=conse, cache_dir=None)
-    r = rep.results[0]
+    r = next(m for m in rep.results if m.name == "CRAFT-E")
     assert r.settings["open_vocab_verbs"] == ["drink from"] and "open-vocabulary" in r.notes[0]

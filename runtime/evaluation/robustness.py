@@ -459,7 +459,8 @@ def evaluate_robustness(
         return {r.name: r.metrics for r in report.results}, rec, report
 
     clean_metrics, clean_rec, clean = run(NOISE_KINDS[0], 0.0, seeds[0])
-    names = [r.name for r in clean.results]
+    # the chance and label-oracle rows do not depend on perception: not plotted against noise
+    names = [r.name for r in clean.results if not r.settings.get("reference")]
     metrics: dict[str, dict[str, list[dict[str, float]]]] = {}
     spread: dict[str, dict[str, list[dict[str, float]]]] = {}
     recognition: dict[str, list[float | None]] = {}
