@@ -159,7 +159,7 @@ def build(
     """Run every pass and emit the bundle at ``config.out`` (atomically)."""
     started = time.perf_counter()
     # Refuse a destructive --out before any work (and again right before the swap).
-    inputs = (config.verbs_file, config.objects_file, config.cache_root)
+    inputs: tuple[Path, ...] = (config.verbs_file, config.objects_file, config.cache_root)
     if config.overrides_file is not None:
         inputs += (config.overrides_file,)
     check_out_path(config.out, config.name, force=config.force, inputs=inputs)
@@ -177,7 +177,14 @@ def build(
     graph = build_graph(draft)
     properties = draft.properties()
     w_vp, w_po = weight_matrices(draft, properties)
-    energy = affordance_energy_matrix(w_vp, w_po, tau=config.tau, form=config.energy_form)  # [V, O]
+    required = np.zeros(w_vp.shape, dtype=bool)  # [V, P] role "required" (prompt v2)
+    p_index = {p: i for i, p in enumerate(properties)}
+    for vi, verb in enumerate(draft.verbs):
+        for prop, link in draft.verb_props.get(verb, {}).items():
+            required[vi, p_index[prop]] = link.role == "required"
+    energy = affordance_energy_matrix(
+        w_vp, w_po, tau=config.tau, form=config.energy_form, required=required
+    )  # [V, O]
     v_index = {v: i for i, v in enumerate(draft.verbs)}
     o_index = {o: i for i, o in enumerate(draft.objects)}
     for verb, obj in draft.forbidden:

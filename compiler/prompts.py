@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel
 
@@ -35,7 +35,8 @@ VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {"verb_properties@v2": VerbProp
 #: v2 asks for discriminating, defined properties and reads objects in a glossed sense
 #: (issue 9); v1 stays loadable so its records keep replaying.
 PROMPT_VERSIONS = ("v1", "v2")
-DEFAULT_PROMPT_VERSION = "v2"
+PromptVersion = Literal["v1", "v2"]
+DEFAULT_PROMPT_VERSION: PromptVersion = "v2"
 DEFAULT_VERSIONS = {
     "verb_properties": DEFAULT_PROMPT_VERSION,
     "object_properties": DEFAULT_PROMPT_VERSION,

@@ -58,7 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from craft_e.runtime.bundle import Bundle, load_bundle
-from craft_e.runtime.energies import EnergyForm
+from craft_e.runtime.energies import ENERGY_FORMS, EnergyForm
 from craft_e.runtime.grounding import (
     DEFAULT_TEMPERATURE,
     ROI,
@@ -400,7 +400,7 @@ def build_service(
 
         text_encoder = load_text_encoder(space)
     default: EnergyForm = bundle.manifest.energy.form
-    forms: tuple[EnergyForm, ...] = ("sum-tanh", "normalized-product")
+    forms: tuple[EnergyForm, ...] = ENERGY_FORMS
     grounders = {
         form: Grounder(bundle, energy_form=form, open_vocab=open_vocab, text_encoder=text_encoder,
                        temperature=temperature)

@@ -15,9 +15,8 @@ from __future__ import annotations
 
 import argparse
 import csv
-from pathlib import Path
-
 import re
+from pathlib import Path
 
 from craft_e.paths import VOCAB_DIR, shared_dir
 from craft_e.schemas.names import normalize_name
