@@ -468,6 +468,8 @@ class Grounder:
         for i, roi in enumerate(rois):
             if len(roi.grasp_scores) == 0:
                 excluded.append(ExcludedROI(i, roi, "no grasp candidates: the robot cannot pick it up"))
+            elif max(roi.grasp_scores) <= 0.0:  # E_grasp would clip 0 to 1e-6 and still rank it
+                excluded.append(ExcludedROI(i, roi, "every grasp scored 0: no viable grasp"))
             elif roi.grasps and len(roi.grasps) != len(roi.grasp_scores):
                 excluded.append(ExcludedROI(i, roi, f"{len(roi.grasps)} grasps but {len(roi.grasp_scores)} scores"))
             elif roi.image_embedding is None:

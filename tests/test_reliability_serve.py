@@ -146,3 +146,19 @@ def test_docs_page_loads_nothing_from_the_network(client: TestClient) -> None:
     assert "/ground" in page and "<script" not in page and "http" not in page.replace("/openapi.json", "")
     assert client.get("/redoc").status_code == 404
     assert client.get("/openapi.json").status_code == 200
+
+
+def test_the_grounder_never_chooses_an_roi_whose_grasps_all_score_zero(
+    runtime_kbs: RuntimeKBs,
+) -> None:
+    """Issue 12 item 13 for the Python API (and so ``craft ground`` and the sim), not only serve."""
+    from craft_e.runtime.bundle import load_bundle
+    from craft_e.runtime.grounding import ROI, Grounder
+
+    kb = load_bundle(runtime_kbs.kb, check_encoder=False)
+    emb = np.ones(kb.manifest.text_encoder.dim, dtype=np.float32)
+    rois = [ROI(box_xywh=(0, 0, 10, 10), grasp_scores=[0.0, 0.0], image_embedding=emb),
+            ROI(box_xywh=(20, 0, 10, 10), grasp_scores=[0.2], image_embedding=emb)]
+    result = Grounder(kb).ground(kb.manifest.verbs[0], rois)
+    assert [r.index for r in result.ranked] == [1]
+    assert result.excluded[0].index == 0 and "scored 0" in result.excluded[0].reason

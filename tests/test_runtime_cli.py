@@ -70,7 +70,10 @@ def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
                                  "--classes", str(RUNTIME_KB / "objects.txt")])
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
-    assert {"CRAFT-E", "alignment-only", "affordance-only"} == set(data["methods"])
+    # every table carries a chance row and a label-oracle row beside the methods (issue 9 item 7)
+    assert {"CRAFT-E", "alignment-only", "affordance-only", "chance", "label oracle"} == set(
+        data["methods"]
+    )
     assert {s["method"] for s in data["skipped_methods"]} == {"CRAFT", "direct-LLM"}
     assert "| CRAFT | skipped" in md.read_text()
 
