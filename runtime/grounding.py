@@ -437,17 +437,26 @@ class Grounder:
 
     # -- scoring -------------------------------------------------------------------------------
 
-    def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None) -> EnergyTerms:
+    def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None,
+                 p_obj: npt.NDArray[Any] | None = None) -> EnergyTerms:
         """The three energies for ``N`` ROIs at once: ``embeddings`` ``[N, d]``, ``grasp_max``
-        ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0)."""
-        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max)
+        ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0). ``p_obj``
+        ``[N, O]`` over ``vocabulary`` replaces the perceived ``p(o | r)`` (diagnostics, e.g. the
+        sim testbed's knowledge-vs-perception split with p set to the true class)."""
+        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj)
 
-    def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None) -> EnergyTerms:
+    def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None,
+                  p_obj: npt.NDArray[Any] | None = None) -> EnergyTerms:
         emb = _unit_rows(embeddings)  # [N, d]
         if emb.ndim != 2 or emb.shape[1] != self.dim:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
                              f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
-        p = object_hypotheses(emb @ self._obj_emb_t, self.temperature)  # [N, O]
+        if p_obj is None:
+            p = object_hypotheses(emb @ self._obj_emb_t, self.temperature)  # [N, O]
+        else:
+            p = np.asarray(p_obj, dtype=np.float32)
+            if p.shape != (len(emb), len(self.vocabulary)):
+                raise ValueError(f"p_obj must be [{len(emb)}, {len(self.vocabulary)}], got {tuple(p.shape)}")
         # expected: sum_o p(o|r) E_aff(v, o); argmax: E_aff(v, most likely o)  -> [N]
         e_aff = p @ plan.row if self.aff_mode == "expected" else plan.row[np.argmax(p, axis=1)]
         e_align = np.tanh(-(emb @ plan.query))  # [N]

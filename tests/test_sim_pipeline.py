@@ -17,6 +17,7 @@ from craft_e.runtime.perception.roi import roi_from_mask
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import execute_pick
 from craft_e.runtime.sim.pipeline import (
+    ChoiceError,
     Failure,
     FingerGeometry,
     PipelineConfig,
@@ -84,13 +85,38 @@ def test_oracle_episode_runs_end_to_end_with_metrics(
         assert all(r.roi.label == f"roi{r.index}" for r in outcome.grounding.ranked)
         if outcome.detect:
             assert outcome.pick is not None and outcome.failure is Failure.SUCCESS
+            assert outcome.choice_error is None
         else:
             assert outcome.pick is None and outcome.failure is Failure.WRONG_OBJECT
             assert outcome.chosen_iou < 0.5
+            # the knowledge/perception split: re-grounded with the true classes
+            fixed = outcome.true_class_roi == per.target_roi
+            assert outcome.choice_error is (ChoiceError.PERCEPTION if fixed else ChoiceError.KNOWLEDGE)
+        assert outcome.true_class_roi is not None
     chosen = {o.chosen_roi for o in result.outcomes.values()}
     again = run_episode(env, EASY, grounders, encoder, config)
     assert {o.chosen_roi for o in again.outcomes.values()} == chosen
     assert [o.pick for o in again.outcomes.values()] == [o.pick for o in result.outcomes.values()]
+
+
+def test_true_class_probabilities_are_one_hot_on_the_covered_body(
+    env: SimEnv, grounders: dict[str, Any], encoder: Any
+) -> None:
+    from craft_e.runtime.sim.pipeline import true_class_choice, true_class_probabilities
+
+    env.reset(EASY)
+    per = perceive(env, encoder, PipelineConfig(grasp="oracle", rois="oracle"))
+    grounder = grounders["CRAFT-E"]
+    names = {o.body_id: o.name for o in env.scene.objects}
+    emb = np.stack([r.embedding for r in per.rois])
+    perceived = grounder.energies("pour", emb).p_obj
+    p_true = true_class_probabilities(grounder, perceived, per, names)
+    for n, r in enumerate(per.rois):
+        assert r.body is not None
+        assert p_true[n].sum() == pytest.approx(1.0)
+        assert grounder.vocabulary[int(np.argmax(p_true[n]))] == names[r.body]
+    # with every object named right, CRAFT-E's knowledge picks the bottle to pour from
+    assert true_class_choice(grounder, "pour", per, names) == per.target_roi
 
 
 def test_every_pick_restarts_from_the_saved_state(env: SimEnv, encoder: Any) -> None:

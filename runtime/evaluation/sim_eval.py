@@ -361,7 +361,7 @@ def _r(x: float) -> float:
     return round(float(x), 6)
 
 
-def episode_record(spec: EpisodeSpec, result: EpisodeResult) -> dict[str, Any]:
+def episode_record(spec: EpisodeSpec, result: EpisodeResult, detect_iou: float = 0.5) -> dict[str, Any]:
     """JSON-ready summary of one ``EpisodeResult``."""
     catalog = object_catalog()
     per = result.perception
@@ -380,6 +380,10 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult) -> dict[str, Any]:
             "detect": o.detect,
             "success": o.success,
             "failure": o.failure.value,
+            "true_class_roi": o.true_class_roi,
+            "true_class_detect": (o.true_class_roi is not None and per.target_box is not None
+                                  and per.rois[o.true_class_roi].target_iou >= detect_iou),
+            "choice_error": o.choice_error.value if o.choice_error is not None else None,
             "pick_outcome": o.pick.outcome.value if o.pick is not None else None,
             "pick_detail": o.pick.detail if o.pick is not None else "",
             "pick_steps": o.pick.steps if o.pick is not None else 0,
@@ -415,7 +419,7 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult) -> dict[str, Any]:
 def summarize(name: str, description: str, records: Sequence[dict[str, Any]],
               settings: dict[str, Any]) -> MethodResult:
     """A method's row: 3D, Detect, Grasp Rate, the failure breakdown and per-verb rates."""
-    from craft_e.runtime.sim.pipeline import Failure
+    from craft_e.runtime.sim.pipeline import ChoiceError, Failure
 
     mine = [(r, r["methods"][name]) for r in records]
     n = max(len(mine), 1)
@@ -431,11 +435,13 @@ def summarize(name: str, description: str, records: Sequence[dict[str, Any]],
         per_verb[verb] = {"episodes": float(k), "three_d": sum(r["three_d"] for r, _ in rows) / k,
                           "detect": sum(m["detect"] for _, m in rows) / k,
                           "grasp_rate": sum(m["success"] for _, m in rows) / k}
+    metrics["detect_true_class"] = sum(bool(m.get("true_class_detect")) for _, m in mine) / n
     failures = {f.value: 0 for f in Failure}
     for _, m in mine:
         failures[m["failure"]] += 1
+    errors = {e.value: sum(m.get("choice_error") == e.value for _, m in mine) for e in ChoiceError}
     return MethodResult(name=name, description=description, metrics=metrics, per_verb=per_verb,
-                        settings={**settings, "failures": failures})
+                        settings={**settings, "failures": failures, "choice_errors": errors})
 
 
 @dataclass
@@ -451,11 +457,12 @@ class SimReport:
     def to_dict(self) -> dict[str, Any]:
         methods: dict[str, Any] = {}
         for r in self.results:
-            settings = {k: v for k, v in r.settings.items() if k != "failures"}
+            settings = {k: v for k, v in r.settings.items() if k not in ("failures", "choice_errors")}
             methods[r.name] = {
                 **{k: _r(v) for k, v in r.metrics.items()},
                 "description": r.description,
                 "failures": r.settings["failures"],
+                "choice_errors": r.settings["choice_errors"],
                 "per_verb": {v: {k: _r(x) for k, x in d.items()} for v, d in r.per_verb.items()},
                 "settings": settings,
                 "notes": r.notes,
@@ -488,10 +495,18 @@ class SimReport:
         used = [k for k in kinds if any(r.settings["failures"][k] for r in self.results)]
         if not used:
             return ""
-        rows = ["| Method | " + " | ".join(used) + " |", "|---|" + "---:|" * len(used)]
+        split = ("wrong: perception", "wrong: knowledge")
+        rows = ["| Method | " + " | ".join(used) + " | " + " | ".join(split) + " | Detect, true class |",
+                "|---|" + "---:|" * (len(used) + len(split) + 1)]
         for r in self.results:
-            rows.append(f"| {r.name} | " + " | ".join(str(r.settings["failures"][k]) for k in used) + " |")
-        return "Outcomes (episodes):\n\n" + "\n".join(rows) + "\n"
+            errors = r.settings["choice_errors"]
+            rows.append(f"| {r.name} | " + " | ".join(str(r.settings["failures"][k]) for k in used)
+                        + f" | {errors['perception']} | {errors['knowledge']} | "
+                        + f"{100 * r.metrics['detect_true_class']:.1f} |")
+        return ("Outcomes (episodes). A `wrong_object` episode is a *perception* error when re-grounding "
+                "it with p(o|r) set to every ROI's true class picks the target, else a *knowledge* error; "
+                "*Detect, true class* is Detect (percent) under that re-grounding.\n\n"
+                + "\n".join(rows) + "\n")
 
 
 ProgressFn = Callable[[int, int, dict[str, Any]], None]
@@ -535,7 +550,7 @@ def evaluate_sim(
         for i, spec in enumerate(specs):
             with SimEnv(env_cfg) as env:  # a fresh client per episode: nothing carries over
                 result = run_episode(env, spec.scene, grounders, enc, cfg)
-            records.append(episode_record(spec, result))
+            records.append(episode_record(spec, result, cfg.detect_iou))
             if progress is not None:
                 progress(i + 1, len(specs), records[-1])
     results: list[MethodResult] = []

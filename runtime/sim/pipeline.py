@@ -506,6 +506,20 @@ class SavedStart:
             p.removeState(self.state_id, physicsClientId=self.env.client)
 
 
+class ChoiceError(StrEnum):
+    """Why grounding chose a wrong region (``wrong_object`` episodes only).
+
+    The episode is re-grounded with ``p(o | r)`` set to each ROI's true class (one-hot on the
+    plain name of the body its mask covers most; ROIs over no body keep their perceived ``p``),
+    everything else unchanged: a wrong choice that this fixes is a *perception* error (the
+    object was not recognised), one it does not fix a *knowledge* error (the KB, or the
+    alignment and grasp energies, prefer another object even when every object is named right).
+    """
+
+    PERCEPTION = "perception"
+    KNOWLEDGE = "knowledge"
+
+
 @dataclass(frozen=True)
 class MethodOutcome:
     """What one method did in one episode."""
@@ -519,6 +533,8 @@ class MethodOutcome:
     failure: Failure
     pick: PickResult | None  # None when nothing was executed
     grasp: GraspCandidate | None
+    true_class_roi: int | None = None  # the choice with p(o|r) set to the true class
+    choice_error: ChoiceError | None = None  # set for wrong_object only
 
     @property
     def success(self) -> bool:
@@ -533,6 +549,53 @@ class EpisodeResult:
     perception: ScenePerception
     outcomes: dict[str, MethodOutcome]
     body_assets: dict[int, str]
+
+
+def true_class_probabilities(
+    grounder: Grounder, perceived: npt.NDArray[np.float32], perception: ScenePerception,
+    body_names: Mapping[int, str],
+) -> npt.NDArray[np.float32]:
+    """``p(o | r)`` ``[N, O]`` with each ROI's row one-hot on its true class (see
+    ``ChoiceError``); rows of ROIs over no scene body, or whose name is not in the grounder's
+    vocabulary, stay as perceived."""
+    from craft_e.schemas.names import normalize_name
+
+    index = {name: j for j, name in enumerate(grounder.vocabulary)}
+    p_true = np.array(perceived, dtype=np.float32, copy=True)
+    for n, r in enumerate(perception.rois):
+        name = body_names.get(r.body) if r.body is not None else None
+        if name is None:
+            continue
+        try:
+            j = index.get(name, index.get(normalize_name(name), -1))
+        except ValueError:
+            j = -1
+        if j >= 0:
+            p_true[n] = 0.0
+            p_true[n, j] = 1.0
+    return p_true
+
+
+def true_class_choice(
+    grounder: Grounder, verb: str, perception: ScenePerception, body_names: Mapping[int, str]
+) -> int | None:
+    """The ROI ``grounder`` chooses when ``p(o | r)`` is the true class; None if none is usable.
+
+    Follows ``Grounder.ground``: ROIs without a grasp scoring above 0 are excluded, each ROI's
+    best grasp gives ``E_grasp``, the lowest total energy wins (stable ties).
+    """
+    usable = [i for i, r in enumerate(perception.rois)
+              if r.usable and max(c.quality for c in r.usable) > 0.0]
+    if not usable:
+        return None
+    emb = np.stack([perception.rois[i].embedding for i in usable])  # [N, d]
+    gmax = np.array([max(c.quality for c in perception.rois[i].usable) for i in usable], np.float32)
+    perceived = grounder.energies(verb, emb, gmax).p_obj  # [N, O]
+    subset = ScenePerception(perception.obs, tuple(perception.rois[i] for i in usable),
+                             perception.target_body, perception.target_box, None, False, "")
+    p_true = true_class_probabilities(grounder, perceived, subset, body_names)
+    terms = grounder.energies(verb, emb, gmax, p_obj=p_true)
+    return usable[int(np.argsort(terms.total, kind="stable")[0])]
 
 
 def _not_detected(perception: ScenePerception) -> Failure:
@@ -565,19 +628,27 @@ def run_episode(
         rois = grounding_rois(perception)
         picks: dict[int, PickResult] = {}
         outcomes: dict[str, MethodOutcome] = {}
+        body_names = {o.body_id: o.name for o in env.scene.objects}  # diagnostics only
         for name, grounder in grounders.items():
             grounding = grounder.ground(spec.verb, rois)
             chosen = grounding.chosen
+            true_roi = true_class_choice(grounder, spec.verb, perception, body_names)
             if chosen is None:
                 outcomes[name] = MethodOutcome(name, grounding, None, 0.0, None, False,
-                                               _not_detected(perception), None, None)
+                                               _not_detected(perception), None, None, true_roi)
                 continue
             roi = perception.rois[chosen.index]
             detect = perception.target_box is not None and roi.target_iou >= cfg.detect_iou
             grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
             if not detect:
+                failure = _not_detected(perception)
+                error = None
+                if failure is Failure.WRONG_OBJECT:
+                    fixed = true_roi is not None and perception.target_box is not None and (
+                        perception.rois[true_roi].target_iou >= cfg.detect_iou)
+                    error = ChoiceError.PERCEPTION if fixed else ChoiceError.KNOWLEDGE
                 outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
-                                               False, _not_detected(perception), None, grasp)
+                                               False, failure, None, grasp, true_roi, error)
                 continue
             if chosen.index not in picks:
                 start.restore()
@@ -588,7 +659,7 @@ def run_episode(
                 )
             pick = picks[chosen.index]
             outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
-                                           True, _PICK_FAILURES[pick.outcome], pick, grasp)
+                                           True, _PICK_FAILURES[pick.outcome], pick, grasp, true_roi)
         return EpisodeResult(spec, perception, outcomes, dict(env.scene.body_assets))
     finally:
         start.release()
