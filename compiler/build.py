@@ -30,7 +30,12 @@ from craft_e.compiler.draft import KnowledgeDraft
 from craft_e.compiler.embed import EmbeddingCache
 from craft_e.compiler.emit import check_out_path, file_digest, write_bundle
 from craft_e.compiler.graph import build_graph, check_draft, coverage, graph_json, weight_matrices
-from craft_e.compiler.llm_knowledge import add_direct_paths, direct_llm_draft, llm_property_draft
+from craft_e.compiler.llm_knowledge import (
+    add_direct_paths,
+    add_property_pass,
+    direct_llm_draft,
+    llm_property_draft,
+)
 from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION
 from craft_e.compiler.rdf import graph_turtle
 from craft_e.compiler.sources.llm import LLMSource, Transport
@@ -38,6 +43,7 @@ from craft_e.compiler.vocab import Vocabulary, read_vocabulary
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
 from craft_e.runtime.energies import EnergyForm, affordance_energy_matrix
 from craft_e.runtime.kb_diagnostics import diagnostics_model
+from craft_e.runtime.open_world import fit_open_world, open_world_json
 from craft_e.schemas.v1.bundle import (
     UNSEALED,
     BuildInfo,
@@ -74,6 +80,7 @@ class BuildConfig(BaseModel):
     encoder_id: str = MINILM_ID
     force: bool = False
     prompt_version: Literal["v1", "v2"] = DEFAULT_PROMPT_VERSION
+    property_pass: bool = False  # stage 2b: also ask per property over all objects (max w_po)
 
 
 @dataclass
@@ -113,6 +120,8 @@ def _source_pass(
     draft = llm_property_draft(
         source, verbs.names, objects.names, progress, version=version, glosses=glosses
     )
+    if config.property_pass:
+        add_property_pass(draft, source, progress)
     if config.mode == "llm+direct":
         direct = direct_llm_draft(
             source, verbs.names, objects.names, progress, version=version, glosses=glosses
@@ -194,6 +203,10 @@ def build(
     np.save(energy_buf, energy, allow_pickle=False)
 
     embeddings_blob, emb_cache = _embeddings(config, draft, properties, progress)
+    # issue 11: the model that infers unseen objects' properties, fitted on this KB's objects
+    from safetensors.numpy import load as load_safetensors
+
+    open_world = fit_open_world(load_safetensors(embeddings_blob)["object"], w_po, tau=config.tau)
     report = BundleReport(
         kb_name=config.name,
         counts={
@@ -220,6 +233,7 @@ def build(
         "report.json": (
             json.dumps(report.model_dump(mode="json"), indent=1, sort_keys=True) + "\n"
         ).encode(),
+        "open_world.json": open_world_json(open_world),
     }
     digests = {name: file_digest(data) for name, data in files.items()}
     manifest = Manifest(

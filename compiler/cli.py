@@ -138,6 +138,12 @@ def build(
         ),
     ] = False,
     prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
+    property_pass: Annotated[
+        bool,
+        typer.Option(
+            help="Stage 2b: also read per-property answers over all objects (w_po = the larger)."
+        ),
+    ] = False,
 ) -> None:
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
     from pydantic import ValidationError
@@ -180,6 +186,7 @@ def build(
             energy_form=energy_form,
             force=force,
             prompt_version=_prompt_version(prompts),
+            property_pass=property_pass,
         )
     except ValidationError as exc:
         fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
@@ -419,7 +426,10 @@ def cache_stats(cache: CacheOpt = CACHE_DIR) -> None:
 
 @curate_app.command("record")
 def curate_record(
-    prompt: Annotated[str, typer.Option(help="verb_properties | object_properties | verb_objects")],
+    prompt: Annotated[
+        str,
+        typer.Option(help="verb_properties | object_properties | property_objects | verb_objects"),
+    ],
     answers: Annotated[Path, typer.Option(help="JSONL file: one answer payload per line.")],
     verbs: Annotated[
         Path, typer.Option(help="Verbs file (defines the property set for objects).")
@@ -463,18 +473,24 @@ def curate_pending(
     objects: Annotated[Path, typer.Option(help="Objects file.")] = VOCAB_DIR / "union_objects.txt",
     cache: CacheOpt = CACHE_DIR,
     prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
+    prompt: Annotated[
+        str, typer.Option(help="object_properties (stage 2) | property_objects (stage 2b).")
+    ] = "object_properties",
 ) -> None:
-    """List object prompts with no answer yet (object, gloss, named property set, rendered
-    prompt), as JSON."""
+    """List stage-2 prompts with no answer yet (subject, gloss or definition, named set,
+    rendered prompt), as JSON."""
     from craft_e.compiler.cache import RecordCache
-    from craft_e.compiler.curate import pending_object_requests
+    from craft_e.compiler.curate import pending_object_requests, pending_property_requests
     from craft_e.compiler.sources.llm import LLMSource, SourceError
     from craft_e.compiler.vocab import VocabError, read_vocabulary
 
     try:
         v = read_vocabulary(verbs, kind="verbs").names
         ov = read_vocabulary(objects, kind="objects")
-        pending = pending_object_requests(
+        if prompt not in ("object_properties", "property_objects"):
+            fail(f"unknown prompt {prompt!r}; choose object_properties or property_objects")
+        lister = pending_property_requests if prompt == "property_objects" else pending_object_requests
+        pending = lister(
             LLMSource(RecordCache(cache)),
             v,
             ov.names,

@@ -18,6 +18,7 @@ from pydantic import ValidationError
 from craft_e.compiler.llm_knowledge import (
     direct_call,
     plan_object_calls,
+    plan_property_calls,
     read_verb_properties,
     verb_call,
 )
@@ -26,6 +27,7 @@ from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
 from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
 from craft_e.schemas.v1.payloads import (
     ObjectProperties,
+    PropertyObjects,
     VerbObjects,
     VerbProperties,
     VerbPropertiesV2,
@@ -105,6 +107,10 @@ def record_answers(
             source, objects, properties, version=version, glosses=glosses, definitions=definitions
         )
         pending = {c.subject: c for c in calls}
+    elif prompt_id == "property_objects":
+        properties, definitions = _stage1_properties(source, verbs, version)
+        _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
+        pending = {c.subject: c for c in calls}
     for lineno, row in _read_answers(answers):
         where = f"{answers}:{lineno}"
         try:
@@ -142,6 +148,23 @@ def record_answers(
                 if outside:
                     raise CurationError(
                         f"{where}: {obj!r} scores properties outside the named set: {outside[:5]}"
+                    )
+            elif prompt_id == "property_objects":
+                po = PropertyObjects.model_validate(row)
+                payload = po.model_dump(mode="json")
+                prop = normalize_property(po.property)
+                if prop not in pending:
+                    result.skipped.append(
+                        f"{where}: {prop!r} has no pending request (already recorded or not a "
+                        "property of the verbs file)"
+                    )
+                    continue
+                call = pending[prop]
+                named = set(call.variables["objects"])
+                outside = [s.object for s in po.scores if normalize_name(s.object) not in named]
+                if outside:
+                    raise CurationError(
+                        f"{where}: {prop!r} scores objects outside the named set: {outside[:5]}"
                     )
             elif prompt_id == "verb_objects":
                 vo = VerbObjects.model_validate(row)
@@ -187,6 +210,29 @@ def _stage1_properties(
             if definition:
                 definitions.setdefault(prop, definition)
     return sorted(props), definitions
+
+
+def pending_property_requests(
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+) -> list[dict[str, object]]:
+    """Stage-2b prompts still to answer: property, definition, named object set, rendered prompt."""
+    properties, definitions = _stage1_properties(source, verbs, version)
+    _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
+    return [
+        {
+            "property": c.subject,
+            "definition": c.variables["definition"],
+            "object_set_id": c.variables["object_set_id"],
+            "objects": c.variables["objects"],
+            "prompt": c.template.render(**c.variables)[1].content,
+        }
+        for c in calls
+    ]
 
 
 def pending_object_requests(

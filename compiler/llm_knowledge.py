@@ -24,6 +24,7 @@ from craft_e.schemas.names import normalize_name, normalize_property
 from craft_e.schemas.v1.bundle import SourceInfo
 from craft_e.schemas.v1.payloads import (
     ObjectProperties,
+    PropertyObjects,
     VerbObjects,
     VerbProperties,
     VerbPropertiesV2,
@@ -148,6 +149,129 @@ def plan_object_calls(
                 )
             )
     return covering, calls
+
+
+PROPERTY_PROMPT_VERSION = "v1"
+
+
+def property_call(
+    prop: str, definition: str, objects: list[str], glosses: dict[str, str]
+) -> PromptCall:
+    """Stage-2b call: one property (with its definition) judged over a named, glossed object set.
+
+    The glosses each object was shown with are kept in the variables, so a record counts for an
+    object only while the object's sense is unchanged.
+    """
+    names = sorted(objects)
+    listed = format_glossed_list(names, glosses)
+    return PromptCall(
+        load_prompt("property_objects", PROPERTY_PROMPT_VERSION),
+        prop,
+        {
+            "property": prop,
+            "definition": definition,
+            "objects": names,
+            "glosses": {o: glosses.get(o, "") for o in names},
+            "object_list": listed,
+            "object_set_id": "os-" + property_set_id(listed.splitlines())[3:],
+        },
+    )
+
+
+def plan_property_calls(
+    source: LLMSource,
+    properties: list[str],
+    definitions: dict[str, str],
+    objects: list[str],
+    glosses: dict[str, str],
+) -> tuple[dict[str, list[Record]], list[PromptCall]]:
+    """Which stage-2b records cover each property, and new calls for its uncovered objects.
+
+    A record covers an object when it was asked with the same definition and the same gloss;
+    adding objects therefore asks each property only about the new ones.
+    """
+    ref = load_prompt("property_objects", PROPERTY_PROMPT_VERSION).ref
+    index: dict[str, list[Record]] = defaultdict(list)
+    for _, record in source.cache.iter_records(LLM_SOURCE):
+        req = record.request
+        if req.prompt == ref and req.provider == source.provider and req.model == source.model:
+            index[req.subject].append(record)
+    covering: dict[str, list[Record]] = {}
+    calls: list[PromptCall] = []
+    for prop in properties:
+        definition = definitions.get(prop, "")
+        records = [
+            r for r in index.get(prop, []) if r.request.variables.get("definition") == definition
+        ]
+        covered = {
+            o
+            for r in records
+            for o, g in r.request.variables.get("glosses", {}).items()
+            if g == glosses.get(o, "")
+        }
+        missing = [o for o in objects if o not in covered]
+        covering[prop] = records
+        if missing:
+            calls.append(property_call(prop, definition, missing, glosses))
+    return covering, calls
+
+
+def add_property_pass(
+    draft: KnowledgeDraft,
+    source: LLMSource,
+    progress: Progress | None = None,
+) -> None:
+    """Merge stage-2b answers (per property) into the per-object w_po: the larger weight wins.
+
+    The per-object pass sees one object against ~200 properties and tends to miss some; the
+    per-property pass sees one definition against every object and misses others. A pair either
+    pass names with a weight counts, with the provenance of every record that named it.
+    """
+    stage = "stage2b_property_objects"
+    properties = draft.properties()
+    covering, calls = plan_property_calls(
+        source, properties, draft.definitions, draft.objects, draft.glosses
+    )
+    records = source.fetch_many(calls, on_done=(lambda c: progress(stage, 1)) if progress else None)
+    for call, record in zip(calls, records, strict=True):
+        covering[call.subject].append(record)
+    objects = set(draft.objects)
+    read = 0
+    for prop in properties:
+        for record in sorted(covering[prop], key=lambda r: r.key):
+            read += 1
+            asked = {
+                o
+                for o, g in record.request.variables.get("glosses", {}).items()
+                if g == draft.glosses.get(o, "")
+            }
+            answer = PropertyObjects.model_validate(record.payload)
+            for score in answer.scores:
+                obj = normalize_name(score.object)
+                if obj not in asked or obj not in objects:
+                    draft.drop(stage, f"{prop} -> {obj}", f"outside named set: record {record.key[:12]}")
+                    continue
+                links = draft.prop_objs.setdefault(prop, {})
+                old = links.get(obj)
+                if old is None:
+                    links[obj] = Link(score.weight, (record.key,), "llm")
+                    draft.count(stage, "edges added")
+                elif score.weight > old.weight:
+                    links[obj] = Link(score.weight, (*old.provenance, record.key), "llm")
+                    draft.count(stage, "edges raised")
+                else:
+                    links[obj] = Link(old.weight, (*old.provenance, record.key), "llm")
+                    draft.count(stage, "edges confirmed")
+    draft.count(stage, "records read", read)
+    draft.sources.append(
+        SourceInfo(
+            kind="llm",
+            provider=source.provider,
+            model=source.model,
+            prompts=[load_prompt("property_objects", PROPERTY_PROMPT_VERSION).ref],
+            records=read,
+        )
+    )
 
 
 def read_verb_properties(

@@ -19,6 +19,7 @@ from pydantic import BaseModel
 from craft_e.paths import PROMPTS_DIR
 from craft_e.schemas.v1.payloads import (
     ObjectProperties,
+    PropertyObjects,
     VerbObjects,
     VerbProperties,
     VerbPropertiesV2,
@@ -29,6 +30,7 @@ PAYLOADS: dict[str, type[BaseModel]] = {
     "verb_properties": VerbProperties,
     "object_properties": ObjectProperties,
     "verb_objects": VerbObjects,
+    "property_objects": PropertyObjects,
 }
 #: Payload models whose shape changed with a prompt version (``<id>@<version>``).
 VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {"verb_properties@v2": VerbPropertiesV2}
@@ -41,6 +43,7 @@ DEFAULT_VERSIONS = {
     "verb_properties": DEFAULT_PROMPT_VERSION,
     "object_properties": DEFAULT_PROMPT_VERSION,
     "verb_objects": DEFAULT_PROMPT_VERSION,
+    "property_objects": "v1",
 }
 _SECTION = re.compile(r"^## (system|user)\s*$", re.MULTILINE)
 

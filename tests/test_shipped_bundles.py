@@ -20,13 +20,13 @@ from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
 from craft_e.runtime.energies import EnergyForm
 from craft_e.schemas.v1.bundle import BUNDLE_FILES, MANIFEST_FILE
 
-#: name -> (mode, prompt version, E_aff form), as scripts/build_kbs builds them.
-SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"], EnergyForm]] = {
-    "craft-e-default": ("llm", "v2", "specificity"),
-    "craft-e-hybrid": ("llm+direct", "v2", "normalized-product"),
-    "craft-e-v1": ("llm", "v1", "sum-tanh"),
-    "direct-llm": ("direct", "v2", "sum-tanh"),
-    "conceptnet": ("conceptnet", "v2", "sum-tanh"),
+#: name -> (mode, prompt version, E_aff form, stage 2b), as scripts/build_kbs builds them.
+SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"], EnergyForm, bool]] = {
+    "craft-e-default": ("llm+direct", "v2", "normalized-product", True),
+    "craft-e-properties": ("llm", "v2", "normalized-product", True),
+    "craft-e-v1": ("llm", "v1", "sum-tanh", False),
+    "direct-llm": ("direct", "v2", "sum-tanh", False),
+    "conceptnet": ("conceptnet", "v2", "sum-tanh", False),
 }
 
 
@@ -42,10 +42,11 @@ def cold_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize("name", list(SHIPPED))
 def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp_path: Path) -> None:
-    mode, prompts, form = SHIPPED[name]
+    mode, prompts, form, property_pass = SHIPPED[name]
     config = BuildConfig(
         prompt_version=prompts,
         energy_form=form,
+        property_pass=property_pass,
         verbs_file=VOCAB_DIR / "union_verbs.txt",
         objects_file=VOCAB_DIR / "union_objects.txt",
         out=tmp_path / name,

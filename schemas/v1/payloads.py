@@ -96,6 +96,32 @@ class ObjectProperties(_Strict):
         return value
 
 
+class ObjectScore(_Strict):
+    """One object that has a property (stage 2b): how well it satisfies the definition (w_po)."""
+
+    object: Phrase
+    weight: Weight
+
+
+class PropertyObjects(_Strict):
+    """Stage 2b answer: the objects (from the prompt's named set) that have ``property``.
+
+    The per-property pass judges every object against one definition, so weights are
+    comparable across objects; sparse on purpose, like the per-object answer.
+    """
+
+    property: Annotated[str, Field(min_length=1, max_length=48)]
+    scores: list[ObjectScore] = Field(max_length=2000)
+
+    @field_validator("scores")
+    @classmethod
+    def _unique(cls, value: list[ObjectScore]) -> list[ObjectScore]:
+        names = [s.object.strip().lower() for s in value]
+        if len(set(names)) != len(names):
+            raise ValueError("each object may be scored once")
+        return value
+
+
 class RankedObject(_Strict):
     """One object of the direct-LLM baseline answer, with the model's confidence."""
 
