@@ -154,6 +154,22 @@ def _behaviour(a: Bundle, b: Bundle, top_k: int) -> list[Json]:
     return rows
 
 
+def _added_object_effects(behaviour: list[Json], a: Bundle, b: Bundle) -> list[Json]:
+    """Per object new in ``b``: the verbs whose top-k it entered (with its rank) and the
+    objects it pushed out — the ranking changes that growing the vocabulary causes."""
+    added = set(b.manifest.objects) - set(a.manifest.objects)
+    out: dict[str, Json] = {}
+    for row in behaviour:
+        names_b = [r["object"] for r in row["b"]]
+        for obj in row["entered"]:
+            if obj in added:
+                entry = out.setdefault(obj, {"object": obj, "verbs": []})
+                entry["verbs"].append({"verb": row["verb"], "rank": names_b.index(obj) + 1,
+                                       "top1": row["top1_b"] == obj,
+                                       "displaced": [o for o in row["left"] if o not in added]})
+    return [out[o] for o in sorted(out)]
+
+
 def _identity(bundle: Bundle) -> Json:
     m = bundle.manifest
     return {
@@ -221,6 +237,7 @@ def diff_bundles(a: Bundle, b: Bundle, top_k: int = 5, threshold: float = 0.1) -
         "weight_changes": weights,
         "forbidden": forbidden,
         "behaviour": behaviour,
+        "added_objects_ranked": _added_object_effects(behaviour, a, b),
         # does E_aff discriminate? (affordant/saturated shares, hubs, margins), before and after
         "diagnostics": {"a": bundle_diagnostics(a), "b": bundle_diagnostics(b)},
     }
@@ -503,6 +520,29 @@ def render_markdown(result: dict[str, Any]) -> str:
             "</details>",
             "",
         ]
+
+    effects = result.get("added_objects_ranked", [])
+    if result["objects"]["added"]:
+        out += [f"### Added objects: ranking changes they cause (top-{result['top_k']})", ""]
+        if not effects:
+            out += [f"No added object entered any verb's top-{result['top_k']}.", ""]
+        else:
+            rows = [
+                [
+                    _code(e["object"]),
+                    ", ".join(
+                        _code(v["verb"]) + f" #{v['rank']}" + (" ⚠️ top-1" if v["top1"] else "")
+                        for v in e["verbs"]
+                    ),
+                    _names(sorted({o for v in e["verbs"] for o in v["displaced"]})),
+                ]
+                for e in effects
+            ]
+            out += _table(
+                ["added object", "entered the top of (rank)", "displaced"],
+                rows,
+                f"{len(effects)} added objects entered a verb's top-{result['top_k']}",
+            )
 
     lists = [
         (f"{title} {verb}", result[part][key])

@@ -29,6 +29,7 @@ from craft_e.schemas.v1.bundle import (
     BundleReport,
     Manifest,
     content_hash,
+    listed_files_ok,
 )
 
 FloatArray = npt.NDArray[np.float32]
@@ -65,6 +66,7 @@ class Bundle:
     energy: FloatArray  # [V, O] E_aff
     embeddings: dict[str, FloatArray]  # verb [V,d], verb_query [V,d], object [O,d], property [P,d]
     report: BundleReport
+    open_world: dict[str, Any] | None = None  # open_world.json (None: a bundle built before it)
     _out: dict[str, list[tuple[str, dict[str, Any]]]] = field(default_factory=dict, repr=False)
 
     @cached_property
@@ -179,7 +181,7 @@ def read_manifest(folder: Path) -> Manifest:
 
 def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
     """Read every listed file and check its size and sha256, and the content hash."""
-    if set(manifest.files) != set(BUNDLE_FILES):
+    if not listed_files_ok(set(manifest.files)):
         raise BundleError(
             f"{folder / MANIFEST_FILE}: lists {sorted(manifest.files)}, expected {sorted(BUNDLE_FILES)}"
         )
@@ -258,12 +260,15 @@ def load_bundle(
             for k, v in load_safetensors(data["embeddings.safetensors"]).items()
         }
         report = BundleReport.model_validate_json(data["report.json"])
+        open_world = json.loads(data["open_world.json"]) if "open_world.json" in data else None
     except (ValueError, ValidationError, KeyError, RecursionError) as exc:
         raise BundleError(
             f"{folder}: a bundle file does not parse ({exc}); rebuild the bundle"
         ) from None
     check_content(folder, manifest, graph, energy, embeddings)
-    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report)
+    if open_world is not None and not isinstance(open_world, dict):
+        raise BundleError(f"{folder / 'open_world.json'}: not a JSON object; rebuild the bundle")
+    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world)
 
 
 def check_content(

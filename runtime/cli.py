@@ -58,6 +58,7 @@ COMMAND_MODULES: list[str] = [
     "craft_e.runtime.cli_robustness",
     "craft_e.runtime.evaluation.cli_zhu",
     "craft_e.runtime.evaluation.cli_kb",
+    "craft_e.runtime.evaluation.cli_open_world",
 ]
 
 err = Console(stderr=True)
@@ -158,7 +159,7 @@ def ground(
     aff_mode: Annotated[str, typer.Option(help="expected | argmax.")] = "expected",
     energy_form: Annotated[str | None, typer.Option(help="sum-tanh | normalized-product | specificity | required-veto | specificity-veto (default: the bundle's).")] = None,
     vocab: Annotated[Path | None, typer.Option(help="Scene object vocabulary file (one per line; default: the KB's objects).")] = None,
-    open_vocab: Annotated[bool, typer.Option(help="Ground verbs the KB lacks via similar KB verbs.")] = False,
+    open_vocab: Annotated[bool, typer.Option(help="Accept verbs the KB lacks and free requests (\"dig a hole\"): mapped to properties of similar verbs and properties, or abstained on.")] = False,
     image_encoder: Annotated[str, typer.Option(help="conse | clip-vit-b32 (needs --clip-weights/--clip-sha256).")] = "conse",
     clip_weights: Annotated[Path | None, typer.Option(help="CLIP ViT-B/32 weights (state dict or ONNX).")] = None,
     clip_sha256: Annotated[str | None, typer.Option(help="Expected sha256 of --clip-weights.")] = None,
@@ -268,7 +269,12 @@ def ground(
         fail(str(exc))
     result.notes.extend(notes)
     if grounder.objects_without_knowledge:
-        result.notes.append(f"vocabulary objects not in the KB (E_aff = 0): {', '.join(grounder.objects_without_knowledge)}")
+        confident = [n for n in grounder.objects_without_knowledge if n in grounder.inferred and grounder.inferred[n].confident]
+        unknown = [n for n in grounder.objects_without_knowledge if n not in confident]
+        if confident:
+            result.notes.append(f"vocabulary objects not in the KB, inferred from similar objects: {', '.join(confident)}")
+        if unknown:
+            result.notes.append(f"vocabulary objects not in the KB, no confident inference (E_aff = 0): {', '.join(unknown)}")
     out.print(result.render(), highlight=False, markup=False, soft_wrap=True)
     if json_out is not None:
         data = {"image": str(image), "image_encoder": encoder.id, **result.to_dict()}

@@ -109,6 +109,46 @@ def affordance_energy_matrix(
     return out
 
 
+def energy_from_property_columns(
+    w_vp: npt.NDArray[Any],
+    q_weight: npt.NDArray[Any],
+    q_link: npt.NDArray[Any],
+    *,
+    specificity: npt.NDArray[Any] | None,
+    form: EnergyForm,
+    required: BoolArray | None = None,
+) -> FloatArray:
+    """E_aff ``[V, N]`` of objects given as property columns rather than as KB objects.
+
+    ``q_weight [P, N]`` is the (expected) linked weight ``w_po 1[w_po >= tau]`` and ``q_link
+    [P, N]`` the (expected) link indicator; for a KB object they are its own linked column and
+    0/1 indicator, and the result equals :func:`affordance_energy_matrix`'s column. Inferred
+    objects (``runtime/open_world.py``) pass neighbour averages. ``specificity [P]`` is the
+    *KB's* (an object added at run time must not change what a property says); ``None`` for
+    the forms that do not read it. The veto counts a required property as missing when its link
+    probability is below one half.
+    """
+    check_energy_form(form)
+    w_vp64 = np.asarray(w_vp, dtype=np.float64)
+    qw = np.asarray(q_weight, dtype=np.float64)
+    ql = np.asarray(q_link, dtype=np.float64)
+    if form == "sum-tanh":
+        has_vp = (w_vp64 > 0).astype(np.float64)
+        out_tanh: FloatArray = np.tanh(-(w_vp64 @ ql + has_vp @ qw)).astype(np.float32)
+        return out_tanh
+    if form in ("specificity", "specificity-veto"):
+        if specificity is None:
+            raise ValueError(f"form {form} needs the KB's property specificity")
+        w_vp64 = w_vp64 * np.asarray(specificity, dtype=np.float64)[None, :]
+    energy = _normalized_product(w_vp64, qw)
+    if form in ("required-veto", "specificity-veto") and required is not None:
+        req = (np.asarray(required) & (np.asarray(w_vp) > 0)).astype(np.float64)  # [V, P]
+        missing = req @ (ql < 0.5).astype(np.float64)  # [V, N]
+        energy = np.where(missing > 0, 0.0, energy)
+    out: FloatArray = energy.astype(np.float32)
+    return out
+
+
 def grasp_energy(scores: npt.NDArray[np.floating] | list[float]) -> float:
     """E_grasp = -log(max_j s_ij), scores clipped to [1e-6, 1]; no grasp -> +inf (excluded)."""
     arr = np.asarray(scores, dtype=np.float64)

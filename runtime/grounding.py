@@ -34,10 +34,26 @@ from craft_e.runtime.energies import (
     EnergyForm,
     affordance_energy_matrix,
     check_energy_form,
+    energy_from_property_columns,
     forbidden_pairs,
     object_hypotheses,
+    property_specificity,
     required_matrix_from_graph,
     weight_matrices_from_graph,
+)
+from craft_e.runtime.open_world import (
+    REQUEST_MIN_CONFIDENCE,
+    REQUEST_PROPERTIES,
+    REQUEST_TEMPERATURE,
+    REQUEST_VERBS,
+    VERB_SHARE,
+    ObjectInference,
+    ObjectModel,
+    OpenWorldError,
+    RequestMapping,
+    linked_weights,
+    map_request,
+    parse_request,
 )
 
 FloatArray = npt.NDArray[np.float32]
@@ -49,8 +65,6 @@ AffMode = Literal["expected", "argmax"]
 #: and is retired for that reason; ``imagenet.calibrate_temperature`` may be run on other images,
 #: such as the testbed's renders, never on the benchmark's.)
 DEFAULT_TEMPERATURE = 0.1
-#: Temperature of the verb-similarity softmax of the open-vocabulary fallback.
-OPEN_VOCAB_TEMPERATURE = 0.05
 GRASP_SCORE_MIN = 1e-6
 
 
@@ -104,6 +118,7 @@ class RankedROI:
     hypotheses: list[ObjectHypothesis]
     paths: list[PathStep]
     forbidden: bool  # the top hypothesis is marked "never pick" for this verb
+    inference: ObjectInference | None = None  # the top hypothesis is not in the KB (issue 11)
 
     @property
     def grasp(self) -> Any:
@@ -135,11 +150,20 @@ class Grounding:
     open_vocab_used: bool = False
     nearest_verbs: list[tuple[str, float]] = field(default_factory=list)  # (verb, weight)
     notes: list[str] = field(default_factory=list)
+    request: RequestMapping | None = None  # a request outside the verb list, mapped (issue 11)
+    property_names: list[str] = field(default_factory=list)
+
+    @property
+    def abstained(self) -> bool:
+        """The request could not be mapped confidently: nothing is chosen (``ranked`` is by
+        grasp and alignment alone, for information)."""
+        return self.request is not None and self.request.abstained
 
     @property
     def chosen(self) -> RankedROI | None:
-        """The lowest-energy ROI, or ``None`` when every ROI was excluded."""
-        return self.ranked[0] if self.ranked else None
+        """The lowest-energy ROI, or ``None`` when every ROI was excluded or the request was
+        abstained on."""
+        return self.ranked[0] if self.ranked and not self.abstained else None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (embeddings, masks and grasp objects left out)."""
@@ -148,6 +172,7 @@ class Grounding:
                 "index": r.index, "label": r.roi.label, "box_xywh": list(r.roi.box_xywh),
                 "e_grasp": r.e_grasp, "e_aff": r.e_aff, "e_align": r.e_align, "total": r.total,
                 "grasp_index": r.grasp_index, "forbidden": r.forbidden,
+                "inferred": None if r.inference is None else r.inference.to_dict(),
                 "grasp_score": float(r.roi.grasp_scores[r.grasp_index]),
                 "hypotheses": [{"object": h.name, "p": h.probability} for h in r.hypotheses],
                 "paths": [{"property": p.prop, "object": p.obj, "w_vp": p.w_vp, "w_po": p.w_po,
@@ -161,6 +186,8 @@ class Grounding:
             "open_vocab_used": self.open_vocab_used,
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
+            "abstained": self.abstained,
+            "request": None if self.request is None else self.request.to_dict(self.property_names),
             "ranked": [roi_dict(r) for r in self.ranked],
             "excluded": [{"index": e.index, "label": e.roi.label, "box_xywh": list(e.roi.box_xywh),
                           "reason": e.reason} for e in self.excluded],
@@ -171,7 +198,9 @@ class Grounding:
         """A terminal report: ranking with energies, exclusions, and the chosen ROI's paths."""
         lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={self.alpha:g} beta={self.beta:g} "
                  f"gamma={self.gamma:g}, T={self.temperature:g}, E_aff {self.energy_form}/{self.aff_mode})"]
-        if self.open_vocab_used:
+        if self.request is not None:
+            lines.append(f"open vocabulary: {self.request.message()}")
+        elif self.open_vocab_used:
             near = ", ".join(f"{v} ({w:.2f})" for v, w in self.nearest_verbs)
             lines.append(f"open vocabulary: {self.verb!r} is not in the KB; E_aff borrowed from {near}")
         lines += [f"note: {n}" for n in self.notes]
@@ -180,17 +209,22 @@ class Grounding:
         for rank, r in enumerate(self.ranked, start=1):
             hyp = ", ".join(f"{h.name} {h.probability:.2f}" for h in r.hypotheses)
             flag = "  [forbidden]" if r.forbidden else ""
+            if r.inference is not None:
+                flag += "  [inferred]" if r.inference.confident else "  [unknown object: alignment only]"
             lines.append(f"{rank:>4} {r.index:>4} {(r.roi.label or '-')[:14]:<14} {r.total:>8.3f} "
                          f"{r.e_grasp:>8.3f} {r.e_aff:>8.3f} {r.e_align:>8.3f}  {hyp}{flag}")
         for e in self.excluded:
             lines.append(f"   - {e.index:>4} {(e.roi.label or '-')[:14]:<14} excluded: {e.reason}")
         best = self.chosen
         if best is None:
-            lines.append("no ROI can be chosen")
+            lines.append(f"abstained: {self.request.message()}" if self.abstained and self.request
+                         else "no ROI can be chosen")
             return "\n".join(lines)
         top = best.hypotheses[0].name if best.hypotheses else "?"
         lines.append(f"chosen: ROI {best.index} (box {', '.join(f'{v:g}' for v in best.roi.box_xywh)}), "
                      f"grasp #{best.grasp_index}, most likely a {top!r}")
+        if best.inference is not None:
+            lines.append(best.inference.describe())
         if best.paths:
             lines.append(f"why {top!r} affords {self.verb!r}:")
             for p in sorted(best.paths, key=lambda p: -(p.w_vp + p.w_po))[:max_paths]:
@@ -222,6 +256,7 @@ class _VerbPlan:
     open_vocab: bool
     nearest: list[tuple[str, float]]
     forbidden: frozenset[str]
+    request: RequestMapping | None = None
 
 
 def _unit_rows(x: npt.NDArray[Any]) -> FloatArray:
@@ -297,6 +332,8 @@ class Grounder:
         open_vocab: bool = False,
         text_encoder: Any | None = None,
         top_k_hypotheses: int = 3,
+        object_min_confidence: float | None = None,
+        request_min_confidence: float | None = None,
     ) -> None:
         if aff_mode not in ("expected", "argmax"):
             raise ValueError(f"aff_mode must be 'expected' or 'argmax', got {aff_mode!r}")
@@ -337,6 +374,7 @@ class Grounder:
         self._verb_query = _unit_rows(bundle.embeddings["verb_query"])  # [V, d]
         self._verb_emb = _unit_rows(bundle.embeddings["verb"])  # [V, d]
         self.dim = int(obj_emb.shape[1])
+        self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
 
         self._forbidden: dict[str, frozenset[str]] = {}
         for v, o in forbidden_pairs(bundle.graph):
@@ -355,6 +393,47 @@ class Grounder:
         self._plans: dict[str, _VerbPlan] = {}
 
     # -- precomputation ------------------------------------------------------------------------
+
+    def _open_world(self, bundle: Bundle, form: EnergyForm, names: list[str], known: npt.NDArray[np.bool_],
+                    idx: npt.NDArray[np.intp], obj_emb: FloatArray, object_min_confidence: float | None,
+                    request_min_confidence: float | None) -> None:
+        """Property columns of the vocabulary (KB objects: their own; unknown ones: inferred from
+        similar KB objects, ``runtime/open_world.py``) and the request-mapping parameters."""
+        m = bundle.manifest
+        tau = m.energy.tau
+        self._w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
+        self._required = required_matrix_from_graph(bundle.graph, m.verbs, m.properties)
+        self._spec = property_specificity(w_po, tau=tau)
+        self.properties = list(m.properties)
+        self._prop_index = {p: i for i, p in enumerate(self.properties)}
+        self._vocab_index = {n: i for i, n in enumerate(names)}
+        weight, link = linked_weights(w_po, tau)  # [P, O_bundle]
+        self._col_w = np.where(known[None, :], weight[:, idx], 0.0)  # [P, O]
+        self._col_l = np.where(known[None, :], link[:, idx], 0.0)
+        self.inferred: dict[str, ObjectInference] = {}
+        ow = bundle.open_world or {}
+        self._request_params: dict[str, Any] = dict(ow.get("requests") or {
+            "verbs": REQUEST_VERBS, "properties": REQUEST_PROPERTIES,
+            "temperature": REQUEST_TEMPERATURE, "verb_share": VERB_SHARE,
+            "min_confidence": REQUEST_MIN_CONFIDENCE})
+        if request_min_confidence is not None:
+            self._request_params["min_confidence"] = float(request_min_confidence)
+        self.open_world_available = bundle.open_world is not None
+        unknown = ~known
+        if not unknown.any() or bundle.open_world is None:
+            return
+        try:
+            model = ObjectModel.from_params(bundle.open_world["objects"], m.objects, bundle.embeddings["object"],
+                                            w_po, tau, object_min_confidence)
+        except (KeyError, TypeError, OpenWorldError) as exc:
+            raise ValueError(f"{bundle.path}/open_world.json: {exc}; rebuild the bundle") from None
+        unknown_names = [n for n, k in zip(names, known.tolist(), strict=True) if not k]
+        q_w, q_l, infos = model.infer(unknown_names, obj_emb[unknown])
+        self._col_w[:, unknown] = q_w
+        self._col_l[:, unknown] = q_l
+        self._eaff[:, unknown] = energy_from_property_columns(
+            self._w_vp, q_w, q_l, specificity=self._spec, form=form, required=self._required)
+        self.inferred = {i.name: i for i in infos}
 
     @staticmethod
     def _object_name(raw: str) -> str:
@@ -386,24 +465,59 @@ class Grounder:
             plan = _VerbPlan(self._eaff[vi], self._verb_query[vi], verb, False, [],
                              self._forbidden.get(verb, frozenset()))
         elif self.open_vocab:
-            plan = self._open_vocab_plan(verb)
+            task = normalize_verb_name(parse_request(verb))
+            plan = self._plan(task) if task in self.verb_index else self._request_plan(verb, task)
         else:
             raise UnknownVerbError(verb, self.kb, difflib.get_close_matches(verb, self.verbs, n=5, cutoff=0.6))
         self._plans[verb] = plan
         return plan
 
-    def _open_vocab_plan(self, verb: str) -> _VerbPlan:
-        """Unknown verb: E_aff = softmax-similarity-weighted mix of the KB verbs' rows."""
+    def _request_plan(self, request: str, task: str) -> _VerbPlan:
+        """A request outside the verb list: property weights from similar verbs and properties,
+        or an abstention below the confidence floor (``open_world.map_request``)."""
         template = self.bundle.manifest.text_encoder.verb_template
-        emb = _unit_rows(self._encoder().embed([verb, template.format(verb=verb)]))  # [2, d]
-        sims = self._verb_emb @ emb[0]  # [V]
-        logits = (sims - sims.max()) / OPEN_VOCAB_TEMPERATURE
-        w = np.exp(logits)
-        w /= w.sum()
-        row = (w @ self._eaff).astype(np.float32)  # [O]
-        order = np.argsort(-w)[:3]
-        nearest = [(self.verbs[i], float(w[i])) for i in order]
-        return _VerbPlan(row, emb[1], nearest[0][0], True, nearest, frozenset())
+        emb = _unit_rows(self._encoder().embed([task, template.format(verb=task)]))  # [2, d]
+        e = self.bundle.embeddings
+        mapping = map_request(
+            request, task, emb[0], emb[1], verbs=self.verbs, verb_embeddings=e["verb"],
+            verb_query_embeddings=e["verb_query"], properties=self.properties,
+            property_embeddings=e["property"], w_vp=self._w_vp, required=self._required,
+            params=self._request_params)
+        if mapping.abstained:
+            row: FloatArray = np.zeros(len(self.vocabulary), dtype=np.float32)
+        else:
+            row = energy_from_property_columns(
+                mapping.weights[None, :], self._col_w, self._col_l, specificity=self._spec,
+                form=self.energy_form, required=mapping.required[None, :])[0]
+        nearest = [(v, w) for v, w, _ in mapping.verbs]
+        return _VerbPlan(row, emb[1], None, True, nearest, frozenset(), mapping)
+
+    def _inferred_paths(self, plan: _VerbPlan, obj: str, limit: int = 5) -> list[PathStep]:
+        """Paths of a request mapping (request -> property -> object), or of a KB verb to an
+        inferred object; inferred edges carry the record id ``inferred``."""
+        j = self._vocab_index.get(obj)
+        if j is None:
+            return []
+        inferred = obj in self.inferred
+        steps: list[PathStep] = []
+        if plan.request is not None:
+            w = plan.request.weights
+            for p in np.flatnonzero(w > 0).tolist():
+                w_po = float(self._col_w[p, j])
+                if w_po <= 0:
+                    continue
+                prop = self.properties[p]
+                edge = self._po.get((prop, obj))
+                prov = ("inferred",) if inferred or edge is None else tuple(edge["provenance"])
+                steps.append(PathStep(plan.request.task, prop, obj, round(float(w[p]), 4), round(w_po, 4), prov))
+        elif plan.explain_verb is not None and inferred:
+            for prop, vp in self._vp.get(plan.explain_verb, []):
+                w_po = float(self._col_w[self._prop_index[prop], j])
+                if w_po > 0:
+                    steps.append(PathStep(plan.explain_verb, prop, obj, float(vp["weight"]), round(w_po, 4),
+                                          (*vp["provenance"], "inferred")))
+        steps.sort(key=lambda s: -(s.w_vp * s.w_po))
+        return steps[:limit]
 
     def paths(self, verb: str, obj: str) -> list[PathStep]:
         """verb -> property -> object paths (w_po >= tau) behind E_aff(verb, obj), cached."""
@@ -499,14 +613,31 @@ class Grounder:
             for n in np.argsort(terms.total, kind="stable").tolist():
                 hyps = [ObjectHypothesis(self.vocabulary[j], p) for j, p in zip(top_i[n], top_p[n], strict=True)]
                 obj = hyps[0].name
-                paths = self.paths(plan.explain_verb, obj) if plan.explain_verb else []
+                if plan.request is not None or obj in self.inferred:
+                    paths = self._inferred_paths(plan, obj)
+                else:
+                    paths = self.paths(plan.explain_verb, obj) if plan.explain_verb else []
                 ranked.append(RankedROI(
                     index=usable[n], roi=rois[usable[n]], e_grasp=e_grasp[n], e_aff=e_aff[n],
                     e_align=e_align[n], total=total[n], grasp_index=best_grasp[n], hypotheses=hyps,
-                    paths=paths, forbidden=obj in plan.forbidden,
+                    paths=paths, forbidden=obj in plan.forbidden, inference=self.inferred.get(obj),
                 ))
         return Grounding(
             verb=name, ranked=ranked, excluded=excluded, kb=self.kb, alpha=self.alpha, beta=self.beta,
             gamma=self.gamma, temperature=self.temperature, aff_mode=self.aff_mode,
             energy_form=self.energy_form, open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
+            request=plan.request, property_names=self.properties if plan.request is not None else [],
+            notes=self._open_world_notes(plan, ranked),
         )
+
+    def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:
+        notes: list[str] = []
+        if plan.request is not None and plan.request.abstained:
+            notes.append(plan.request.message())
+        shown = {r.inference.name for r in ranked if r.inference is not None}
+        for name in sorted(shown):
+            notes.append(self.inferred[name].describe())
+        if self.objects_without_knowledge and not self.open_world_available:
+            notes.append("this bundle has no open-world model (open_world.json; built before issue 11): "
+                         "objects outside the KB get E_aff = 0; rebuild it to infer them")
+        return notes

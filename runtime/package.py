@@ -60,6 +60,7 @@ from craft_e.schemas.v1.bundle import (
     MANIFEST_FILE,
     Manifest,
     content_hash,
+    listed_files_ok,
 )
 from craft_e.schemas.v1.records import canonical_json
 
@@ -479,7 +480,7 @@ def _parse_manifest(path: Path, data: bytes, statement: PackageStatement) -> Man
         statement.content_sha256,
     ):
         raise _fail(path, f"{MANIFEST_FILE} disagrees with the signed statement", _REPACK)
-    if set(manifest.files) != set(BUNDLE_FILES):
+    if not listed_files_ok(set(manifest.files)):
         raise _fail(
             path,
             f"{MANIFEST_FILE} lists {sorted(manifest.files)}, expected {sorted(BUNDLE_FILES)}",

@@ -89,6 +89,9 @@ MAX_ABS_VALUE = 1e6
 IMAGE_FORMATS = ("PNG", "JPEG")
 MAX_VERB_CHARS = 100
 MAX_LABEL_CHARS = 200
+#: Scene vocabulary entries per request, and grounders kept for recent vocabularies.
+MAX_OBJECTS = 512
+VOCABULARY_CACHE = 16
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -160,8 +163,14 @@ class RoiIn(BaseModel):
 class GroundRequest(BaseModel):
     model_config = _STRICT
 
-    verb: str = Field(min_length=1, max_length=MAX_VERB_CHARS, description="The action, e.g. cut.")
+    verb: str = Field(min_length=1, max_length=MAX_VERB_CHARS, description=(
+        "The action, e.g. cut; with --open-vocab also a verb the KB lacks or a free request "
+        "(\"dig a hole\"), mapped to properties or abstained on."))
     rois: list[RoiIn] = Field(min_length=1)
+    objects: list[Annotated[str, Field(min_length=1, max_length=MAX_LABEL_CHARS)]] | None = Field(
+        None, max_length=MAX_OBJECTS, description=(
+            "The scene's object vocabulary for p(o | r) (default: the KB's objects). Names the KB "
+            "lacks are inferred from similar KB objects, or flagged as unknown (E_aff = 0)."))
     options: GroundOptions | None = None
 
 
@@ -220,6 +229,7 @@ class GroundingService:
     max_image_pixels: int = MAX_IMAGE_PIXELS
     max_concurrent_images: int = DEFAULT_MAX_CONCURRENT_IMAGES
     _encoder_lock: threading.Lock = field(default_factory=threading.Lock)
+    _vocab_grounders: dict[tuple[str, tuple[str, ...]], Grounder] = field(default_factory=dict, repr=False)
     _image_slots: threading.BoundedSemaphore | None = field(default=None, repr=False)
 
     def image_slot(self) -> threading.BoundedSemaphore:
@@ -241,7 +251,26 @@ class GroundingService:
             "uptime_s": round(time.time() - self.started, 3),
         }
 
-    def grounder(self, options: GroundOptions | None) -> Grounder:
+    def vocabulary_grounder(self, base: Grounder, form: EnergyForm, objects: list[str]) -> Grounder:
+        """A grounder over a request's scene vocabulary (unknown names inferred), kept for the
+        last ``VOCABULARY_CACHE`` vocabularies; shares the server's text encoder."""
+        key = (form, tuple(objects))
+        found = self._vocab_grounders.pop(key, None)
+        if found is None:
+            try:
+                found = Grounder(self.bundle, energy_form=form, open_vocab=base.open_vocab,
+                                 text_encoder=base._text_encoder, temperature=base.temperature,
+                                 vocabulary=objects)
+            except ValueError as exc:
+                raise _invalid(["objects"], str(exc), "invalid_vocabulary") from None
+            if base._text_encoder is None:
+                base._text_encoder = found._text_encoder
+        self._vocab_grounders[key] = found  # most recent last
+        while len(self._vocab_grounders) > VOCABULARY_CACHE:
+            self._vocab_grounders.pop(next(iter(self._vocab_grounders)))
+        return found
+
+    def grounder(self, options: GroundOptions | None, objects: list[str] | None = None) -> Grounder:
         """The prebuilt grounder of the requested form, re-weighted if asked.
 
         ``alpha``/``beta``/``gamma`` are read only when energies are combined, so a shallow copy
@@ -249,6 +278,8 @@ class GroundingService:
         """
         form = (options.energy_form if options else None) or self.default_form
         base = self.grounders[form]
+        if objects is not None:
+            base = self.vocabulary_grounder(base, form, objects)
         if options is None or (options.alpha, options.beta, options.gamma) == (None, None, None):
             return base
         return base.with_weights(
@@ -311,8 +342,9 @@ class GroundingService:
                     label=b.label) for i, b in enumerate(req.boxes)]
         return rois, {"width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
 
-    def ground(self, verb: str, rois: list[ROI], options: GroundOptions | None) -> dict[str, Any]:
-        grounder = self.grounder(options)
+    def ground(self, verb: str, rois: list[ROI], options: GroundOptions | None,
+               objects: list[str] | None = None) -> dict[str, Any]:
+        grounder = self.grounder(options, objects)
         # All-zero grasp scores mean no feasible grasp: E_grasp would be clipped to -log(1e-6)
         # and a strong affordance could still make the ROI the choice. Exclude it instead.
         no_grasp = {i for i, r in enumerate(rois) if r.grasp_scores and max(r.grasp_scores) <= 0.0}
@@ -545,7 +577,7 @@ def create_app(
         Runs on the event loop: the whole request is ~1 ms of numpy, less than a thread hand-off.
         """
         req = await _parse(request, GroundRequest)
-        return _json(service.ground(req.verb, service.rois_from_request(req), req.options))
+        return _json(service.ground(req.verb, service.rois_from_request(req), req.options, req.objects))
 
     @app.post("/ground_image", openapi_extra=_body_doc(GroundImageRequest), response_class=JSONResponse)
     async def ground_image(request: Request) -> Response:

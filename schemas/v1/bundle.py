@@ -26,7 +26,20 @@ BUNDLE_FILES: tuple[str, ...] = (
     "embeddings.safetensors",
     "affordance_energy.npy",
     "report.json",
+    "open_world.json",
 )
+#: Bundle files a bundle built before they existed may lack (it still loads; the runtime then
+#: goes without what the file provides). ``open_world.json``: issue 11's open-world model.
+OPTIONAL_BUNDLE_FILES: tuple[str, ...] = ("open_world.json",)
+
+
+def listed_files_ok(listed: set[str] | frozenset[str]) -> bool:
+    """Whether a manifest's file table is this schema's: every file, or every file but some
+    optional ones (older bundles)."""
+    required = set(BUNDLE_FILES) - set(OPTIONAL_BUNDLE_FILES)
+    return required <= listed <= set(BUNDLE_FILES)
+
+
 MANIFEST_FILE = "manifest.json"
 BUILD_INFO_FILE = "build_info.json"
 
