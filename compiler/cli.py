@@ -474,22 +474,34 @@ def curate_pending(
     cache: CacheOpt = CACHE_DIR,
     prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
     prompt: Annotated[
-        str, typer.Option(help="object_properties (stage 2) | property_objects (stage 2b).")
+        str,
+        typer.Option(
+            help="object_properties (stage 2) | property_objects (stage 2b) | verb_objects (direct)."
+        ),
     ] = "object_properties",
 ) -> None:
     """List stage-2 prompts with no answer yet (subject, gloss or definition, named set,
     rendered prompt), as JSON."""
     from craft_e.compiler.cache import RecordCache
-    from craft_e.compiler.curate import pending_object_requests, pending_property_requests
+    from craft_e.compiler.curate import (
+        pending_direct_requests,
+        pending_object_requests,
+        pending_property_requests,
+    )
     from craft_e.compiler.sources.llm import LLMSource, SourceError
     from craft_e.compiler.vocab import VocabError, read_vocabulary
 
     try:
         v = read_vocabulary(verbs, kind="verbs").names
         ov = read_vocabulary(objects, kind="objects")
-        if prompt not in ("object_properties", "property_objects"):
-            fail(f"unknown prompt {prompt!r}; choose object_properties or property_objects")
-        lister = pending_property_requests if prompt == "property_objects" else pending_object_requests
+        listers = {
+            "object_properties": pending_object_requests,
+            "property_objects": pending_property_requests,
+            "verb_objects": pending_direct_requests,
+        }
+        if prompt not in listers:
+            fail(f"unknown prompt {prompt!r}; choose one of {', '.join(listers)}")
+        lister = listers[prompt]
         pending = lister(
             LLMSource(RecordCache(cache)),
             v,

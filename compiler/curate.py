@@ -17,6 +17,7 @@ from pydantic import ValidationError
 
 from craft_e.compiler.llm_knowledge import (
     direct_call,
+    plan_direct_calls,
     plan_object_calls,
     plan_property_calls,
     read_verb_properties,
@@ -107,6 +108,9 @@ def record_answers(
             source, objects, properties, version=version, glosses=glosses, definitions=definitions
         )
         pending = {c.subject: c for c in calls}
+    elif prompt_id == "verb_objects" and version != "v1":
+        _, calls = plan_direct_calls(source, verbs, objects, glosses or {})
+        pending = {c.subject: c for c in calls}
     elif prompt_id == "property_objects":
         properties, definitions = _stage1_properties(source, verbs, version)
         _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
@@ -169,10 +173,18 @@ def record_answers(
             elif prompt_id == "verb_objects":
                 vo = VerbObjects.model_validate(row)
                 payload = vo.model_dump(mode="json")
-                call = direct_call(
-                    normalize_verb(vo.verb), objects, version=version, glosses=glosses
-                )
-                offered = set(objects)
+                verb = normalize_verb(vo.verb)
+                if version == "v1":
+                    call = direct_call(verb, objects, version=version, glosses=glosses)
+                else:  # v2 grows incrementally: the pending call names only uncovered objects
+                    if verb not in pending:
+                        result.skipped.append(
+                            f"{where}: {verb!r} has no pending request (already recorded for "
+                            "every object, or not in the verbs file)"
+                        )
+                        continue
+                    call = pending[verb]
+                offered = set(call.variables["objects"])
                 outside = [r.object for r in vo.ranking if normalize_name(r.object) not in offered]
                 if outside:
                     raise CurationError(
@@ -228,6 +240,27 @@ def pending_property_requests(
             "property": c.subject,
             "definition": c.variables["definition"],
             "object_set_id": c.variables["object_set_id"],
+            "objects": c.variables["objects"],
+            "prompt": c.template.render(**c.variables)[1].content,
+        }
+        for c in calls
+    ]
+
+
+def pending_direct_requests(
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+) -> list[dict[str, object]]:
+    """Direct (v2) prompts still to answer: verb, the objects no record covers, rendered prompt."""
+    del version  # the direct prompt grows incrementally from v2 on
+    _, calls = plan_direct_calls(source, verbs, objects, glosses or {})
+    return [
+        {
+            "verb": c.subject,
             "objects": c.variables["objects"],
             "prompt": c.template.render(**c.variables)[1].content,
         }

@@ -412,23 +412,41 @@ def direct_llm_draft(
         draft.glosses = {o: g for o, g in (glosses or {}).items() if o in set(objects)}
     stage = "direct_verb_objects"
     vocabulary = set(objects)
-    records = source.fetch_many(
-        [direct_call(v, objects, version=version, glosses=glosses) for v in verbs],
-        on_done=(lambda c: progress(stage, 1)) if progress else None,
-    )
-    for verb, record in zip(verbs, records, strict=True):
-        payload = VerbObjects.model_validate(record.payload)
+    if version == "v1":
+        records = source.fetch_many(
+            [direct_call(v, objects, version=version, glosses=glosses) for v in verbs],
+            on_done=(lambda c: progress(stage, 1)) if progress else None,
+        )
+        by_verb = {v: [r] for v, r in zip(verbs, records, strict=True)}
+    else:
+        by_verb, calls = plan_direct_calls(source, verbs, objects, glosses or {})
+        fetched = source.fetch_many(
+            calls, on_done=(lambda c: progress(stage, 1)) if progress else None
+        )
+        for call, record in zip(calls, fetched, strict=True):
+            by_verb[call.subject].append(record)
+        records = [r for v in verbs for r in by_verb[v]]
+    for verb in verbs:
         prop = f"direct: {verb}"
-        draft.verb_props[verb] = {prop: Link(1.0, (record.key,), "direct")}
+        keys = tuple(r.key for r in by_verb[verb])
+        draft.verb_props[verb] = {prop: Link(1.0, keys, "direct")}
         links = draft.prop_objs.setdefault(prop, {})
-        for item in payload.ranking:
-            obj = normalize_name(item.object)
-            if obj not in vocabulary:
-                draft.drop(stage, f"{verb} -> {obj}", "outside vocabulary: object not offered")
-                continue
-            links[obj] = Link(item.score, (record.key,), "direct")
-            draft.count(stage, "edges kept")
-        draft.count(stage, "records read")
+        for record in by_verb[verb]:
+            offered = set(offered_objects(record))
+            payload = VerbObjects.model_validate(record.payload)
+            for item in payload.ranking:
+                obj = normalize_name(item.object)
+                if obj not in offered:
+                    draft.drop(stage, f"{verb} -> {obj}", "outside vocabulary: object not offered")
+                    continue
+                if obj not in vocabulary:
+                    draft.count(stage, "offered in a wider record, not in this vocabulary")
+                    continue
+                if obj in links:
+                    continue  # a later record about the same object in the same sense
+                links[obj] = Link(item.score, (record.key,), "direct")
+                draft.count(stage, "edges kept")
+            draft.count(stage, "records read")
     draft.sources.append(
         SourceInfo(
             kind="llm",
@@ -439,6 +457,49 @@ def direct_llm_draft(
         )
     )
     return draft
+
+
+def offered_objects(record: Record) -> dict[str, str]:
+    """The objects a direct record offered, with the gloss each was shown with ('' if none)."""
+    offered: dict[str, str] = {}
+    for line in str(record.request.variables.get("object_list", "")).splitlines():
+        name, _, gloss = line.removeprefix("- ").partition(": ")
+        offered[name] = gloss
+    return offered
+
+
+def plan_direct_calls(
+    source: LLMSource, verbs: list[str], objects: list[str], glosses: dict[str, str]
+) -> tuple[dict[str, list[Record]], list[PromptCall]]:
+    """Direct (v2) records covering each verb's objects, and calls for the objects none covers.
+
+    A record covers an object it offered in the same sense (gloss), so growing the vocabulary
+    asks each verb only about the new objects; confidences are absolute, so answers about
+    different object sets combine.
+    """
+    ref = load_prompt("verb_objects", "v2").ref
+    index: dict[str, list[Record]] = defaultdict(list)
+    for _, record in source.cache.iter_records(LLM_SOURCE):
+        req = record.request
+        if req.prompt == ref and req.provider == source.provider and req.model == source.model:
+            index[req.subject].append(record)
+    covering: dict[str, list[Record]] = {}
+    calls: list[PromptCall] = []
+    for verb in verbs:
+        useful: list[Record] = []
+        covered: set[str] = set()
+        for record in sorted(index.get(verb, []), key=lambda r: r.key):
+            same_sense = {
+                o for o, g in offered_objects(record).items() if g == glosses.get(o, "")
+            } & set(objects)
+            if same_sense - covered:
+                useful.append(record)
+                covered |= same_sense
+        covering[verb] = useful
+        missing = [o for o in objects if o not in covered]
+        if missing:
+            calls.append(direct_call(verb, missing, version="v2", glosses=glosses))
+    return covering, calls
 
 
 DIRECT_PATH = "used to {verb}"

@@ -81,3 +81,38 @@ def test_adding_an_object_asks_each_property_only_about_it(
     grown = [*_names("objects.txt"), "ladle"]
     after = pending_property_requests(source, verbs, grown, version="v1")
     assert after and all(p["objects"] == ["ladle"] for p in after)
+
+
+def test_direct_answers_grow_incrementally(tmp_path: Path) -> None:
+    """Direct (v2) records cover the objects they offered; a bigger vocabulary asks only about
+    the new objects, and the build combines both records for each verb."""
+    from craft_e.compiler.build import BuildConfig
+    from craft_e.compiler.curate import pending_direct_requests
+
+    cache = tmp_path / "cache"
+    source = fixture_source(cache)
+    verbs = read_vocabulary(KB_SMALL / "verbs.txt", kind="verbs").names
+    objects = _names("objects.txt")
+    first = pending_direct_requests(source, verbs, objects)
+    assert [p["verb"] for p in first] == verbs
+    answers = tmp_path / "direct.jsonl"
+    answers.write_text("\n".join(json.dumps({"verb": v, "ranking": [
+        {"object": "spoon" if v == "scoop" else "knife", "score": 0.9}]}) for v in verbs) + "\n")  # fmt: skip
+    assert record_answers(source, "verb_objects", answers, verbs, objects, version="v2").stored == 3
+    grown = [*objects, "ladle"]
+    second = pending_direct_requests(source, verbs, grown)
+    assert [p["objects"] for p in second] == [["ladle"]] * 3
+    answers.write_text("\n".join(json.dumps({"verb": v, "ranking": (
+        [{"object": "ladle", "score": 0.8}] if v in ("scoop", "pour") else [])}) for v in verbs) + "\n")  # fmt: skip
+    assert record_answers(source, "verb_objects", answers, verbs, grown, version="v2").stored == 3
+    assert pending_direct_requests(source, verbs, grown) == []
+    (tmp_path / "objects.txt").write_text("\n".join(grown) + "\n")
+    config = BuildConfig(
+        verbs_file=KB_SMALL / "verbs.txt", objects_file=tmp_path / "objects.txt",
+        out=tmp_path / "kb", name="grown", mode="direct", tau=0.0,
+        provider="test-fixture", model="fixture-v1", cache_root=cache,
+    )  # fmt: skip
+    edges = _edges(build(config).out)
+    assert edges[("prop:direct: scoop", "obj:spoon")]["weight"] == 0.9
+    assert edges[("prop:direct: scoop", "obj:ladle")]["weight"] == 0.8
+    assert len(edges[("verb:scoop", "prop:direct: scoop")]["provenance"]) == 2  # type: ignore[arg-type]
