@@ -1,7 +1,8 @@
 """Write artifacts/vocab/wordnet_glosses.tsv: object name -> WordNet 3.0 gloss (its sense).
 
 Run: python scripts/make_glosses.py [--wordnet /usr/share/wordnet]   (Debian: wordnet-base),
-after scripts/make_vocab.py. It also rewrites artifacts/vocab/union_objects.txt as
+after scripts/make_vocab.py. It also writes artifacts/vocab/default_objects.txt (the union plus
+artifacts/vocab/household_objects.txt) and rewrites artifacts/vocab/union_objects.txt as
 ``name<TAB>gloss`` (WordNet first, then the written glosses): the default objects file of
 ``craftc build``, so every shipped object is asked about in one stated sense.
 
@@ -94,6 +95,12 @@ def main() -> None:
     senses = {n: by_name.get(n, []) + ([written[n]] if n in written else []) for n in names}
     union.write_text("".join(f"{n}\t{'; or: '.join(senses[n])}\n" for n in names), encoding="utf-8")
     print(f"wrote {len(names)} glossed names to {union}")
+    # The shipped default KB's objects: the benchmark union plus a household robot's everyday
+    # objects (COCO categories, kitchen, office, workshop, bathroom; written glosses).
+    household = (VOCAB_DIR / "household_objects.txt").read_text(encoding="utf-8").splitlines()
+    default = VOCAB_DIR / "default_objects.txt"
+    default.write_text(union.read_text(encoding="utf-8") + "\n".join(household) + "\n", encoding="utf-8")
+    print(f"wrote {len(names) + len(household)} glossed names to {default}")
 
 
 if __name__ == "__main__":
