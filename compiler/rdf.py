@@ -1,50 +1,87 @@
-"""RDF Turtle export of the graph (rdflib), so the KB opens in any RDF tool.
+"""RDF Turtle export of the graph, so the KB opens in any RDF tool.
 
-Weighted edges are reified as ``craft:Link`` resources (subject, object, weight, provenance);
-plain ``craft:hasProperty`` / ``craft:propertyOf`` triples are emitted too for simple queries.
+Weighted edges are reified as ``craft:Link`` resources (source, target, weight, relation,
+provenance, and the verb's role for a property where the KB has one); plain
+``craft:hasProperty`` / ``craft:propertyOf`` triples are emitted too for simple queries. Object
+glosses and property definitions become ``rdfs:comment``.
+
+Written by a small canonical writer rather than rdflib's serializer: every triple is a full-IRI
+line, subjects and predicate-object pairs sorted, literals escaped per Turtle 1.1. The output is
+byte-identical run to run and about a hundred times faster to produce (rdflib's Turtle export
+was ~90 % of a warm build); ``tests/test_rdf.py`` parses it back with rdflib and checks it is
+the same graph rdflib itself would build.
 """
 
 from __future__ import annotations
 
 import hashlib
+from collections import defaultdict
 from urllib.parse import quote
 
 import networkx as nx
-from rdflib import RDF, RDFS, Graph, Literal, Namespace, URIRef
-from rdflib.namespace import XSD
 
-CRAFT = Namespace("https://craft-e.dev/ns#")
+CRAFT = "https://craft-e.dev/ns#"
+RDF_TYPE = "http://www.w3.org/1999/02/22-rdf-syntax-ns#type"
+RDFS_LABEL = "http://www.w3.org/2000/01/rdf-schema#label"
+RDFS_COMMENT = "http://www.w3.org/2000/01/rdf-schema#comment"
+XSD_DECIMAL = "http://www.w3.org/2001/XMLSchema#decimal"
+KINDS = {"verb": "Verb", "property": "Property", "object": "Object"}
+_ESCAPES = {"\\": "\\\\", '"': '\\"', "\n": "\\n", "\r": "\\r", "\t": "\\t"}
 
 
-def _node_uri(base: Namespace, node_id: str) -> URIRef:
+def node_iri(kb_name: str, node_id: str) -> str:
     kind, name = node_id.split(":", 1)
-    return URIRef(f"{base}{kind}/{quote(name.replace(' ', '_'), safe='')}")
+    return f"https://craft-e.dev/kb/{kb_name}/{kind}/{quote(name.replace(' ', '_'), safe='')}"
+
+
+def _iri(value: str) -> str:
+    return f"<{value}>"
+
+
+def _literal(text: str, datatype: str | None = None) -> str:
+    escaped = "".join(_ESCAPES.get(c, c) for c in text)
+    return f'"{escaped}"' + (f"^^<{datatype}>" if datatype else "")
+
+
+def graph_triples(graph: nx.DiGraph, kb_name: str) -> list[tuple[str, str, str]]:
+    """Every triple as (subject, predicate, object) in N-Triples term syntax."""
+    triples: list[tuple[str, str, str]] = []
+    for node in graph.nodes:
+        data = graph.nodes[node]
+        uri = _iri(node_iri(kb_name, node))
+        triples.append((uri, _iri(RDF_TYPE), _iri(CRAFT + KINDS[data["kind"]])))
+        triples.append((uri, _iri(RDFS_LABEL), _literal(str(data["name"]))))
+        for key in ("gloss", "definition"):
+            if data.get(key):
+                triples.append((uri, _iri(RDFS_COMMENT), _literal(str(data[key]))))
+    for u, v in graph.edges:
+        data = graph.edges[u, v]
+        su, sv = _iri(node_iri(kb_name, u)), _iri(node_iri(kb_name, v))
+        predicate = "hasProperty" if u.startswith("verb:") else "propertyOf"
+        triples.append((su, _iri(CRAFT + predicate), sv))
+        digest = hashlib.sha256(f"{u}|{v}".encode()).hexdigest()[:16]
+        link = _iri(f"https://craft-e.dev/kb/{kb_name}/link/{digest}")
+        triples.append((link, _iri(RDF_TYPE), _iri(CRAFT + "Link")))
+        triples.append((link, _iri(CRAFT + "source"), su))
+        triples.append((link, _iri(CRAFT + "target"), sv))
+        weight = _literal(f"{data['weight']:.6f}", XSD_DECIMAL)
+        triples.append((link, _iri(CRAFT + "weight"), weight))
+        triples.append((link, _iri(CRAFT + "relation"), _literal(str(data["relation"]))))
+        if data.get("role"):
+            triples.append((link, _iri(CRAFT + "role"), _literal(str(data["role"]))))
+        for prov in data["provenance"]:
+            triples.append((link, _iri(CRAFT + "provenance"), _literal(str(prov))))
+    return triples
 
 
 def graph_turtle(graph: nx.DiGraph, kb_name: str) -> bytes:
-    """Deterministic Turtle: rdflib sorts subjects and predicates when serializing."""
-    base = Namespace(f"https://craft-e.dev/kb/{kb_name}/")
-    rdf = Graph()
-    rdf.bind("craft", CRAFT)
-    rdf.bind("kb", base)
-    kinds = {"verb": CRAFT.Verb, "property": CRAFT.Property, "object": CRAFT.Object}
-    for node in sorted(graph.nodes):
-        data = graph.nodes[node]
-        uri = _node_uri(base, node)
-        rdf.add((uri, RDF.type, kinds[data["kind"]]))
-        rdf.add((uri, RDFS.label, Literal(data["name"])))
-    for u, v in sorted(graph.edges):
-        data = graph.edges[u, v]
-        su, sv = _node_uri(base, u), _node_uri(base, v)
-        predicate = CRAFT.hasProperty if u.startswith("verb:") else CRAFT.propertyOf
-        rdf.add((su, predicate, sv))
-        link = URIRef(f"{base}link/{hashlib.sha256(f'{u}|{v}'.encode()).hexdigest()[:16]}")
-        rdf.add((link, RDF.type, CRAFT.Link))
-        rdf.add((link, CRAFT.source, su))
-        rdf.add((link, CRAFT.target, sv))
-        rdf.add((link, CRAFT.weight, Literal(f"{data['weight']:.6f}", datatype=XSD.decimal)))
-        rdf.add((link, CRAFT.relation, Literal(data["relation"])))
-        for prov in data["provenance"]:
-            rdf.add((link, CRAFT.provenance, Literal(prov)))
-    text: str = rdf.serialize(format="turtle")
-    return text.encode()
+    """Canonical Turtle: one block per subject (sorted), ``predicate object`` pairs sorted."""
+    by_subject: dict[str, set[tuple[str, str]]] = defaultdict(set)
+    for s, p, o in graph_triples(graph, kb_name):
+        by_subject[s].add((p, o))
+    lines = [f"# CRAFT-E KB {kb_name}: verb -> property -> object, weighted links reified", ""]
+    for subject in sorted(by_subject):
+        pairs = sorted(by_subject[subject])
+        body = " ;\n    ".join(f"{p} {o}" for p, o in pairs)
+        lines.append(f"{subject}\n    {body} .\n")
+    return ("\n".join(lines)).encode("utf-8")
