@@ -34,10 +34,11 @@ from typing import Any
 import numpy as np
 from safetensors.numpy import save as save_safetensors
 
-from craft_e.runtime.bundle import load_bundle
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
-from craft_e.runtime.energies import affordance_energy_matrix
-from craft_e.runtime.grounding import ROI, Grounder
+from craft_e.runtime.grounding.energies import affordance_energy_matrix
+from craft_e.runtime.grounding.grounder import ROI, Grounder
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.kb.bundle import load_bundle
 from craft_e.schemas.v1.bundle import (
     UNSEALED,
     BundleReport,
@@ -148,7 +149,7 @@ def main() -> int:
         grounder = Grounder(kb)
         report("Grounder(bundle) constructor", 1000 * (time.perf_counter() - t))
         t = time.perf_counter()
-        Grounder(kb, energy_form="normalized-product")
+        Grounder(kb, GroundingSettings(energy_form="normalized-product"))
         report("Grounder(bundle, normalized-product) constructor", 1000 * (time.perf_counter() - t),
                note="recomputes E_aff from graph edges")
         rng = np.random.default_rng(1)
@@ -156,7 +157,7 @@ def main() -> int:
         rois = [ROI((0, 0, 10, 10), list(rng.uniform(0.2, 1.0, 5)), image_embedding=e) for e in emb]
         med, p90 = _median_ms(lambda: grounder.ground("verb 7", rois), args.repeats)
         report("ground(): 10 ROIs, 400-object vocabulary", med, p90, "target < 1 ms")
-        argmax = Grounder(kb, aff_mode="argmax")
+        argmax = Grounder(kb, GroundingSettings(aff_mode="argmax"))
         med, p90 = _median_ms(lambda: argmax.ground("verb 7", rois), args.repeats)
         report("ground(): same, aff_mode=argmax", med, p90)
         many = [ROI((0, 0, 10, 10), [0.9], image_embedding=e) for e in _unit(rng, 100)]

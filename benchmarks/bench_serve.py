@@ -48,7 +48,7 @@ def free_port() -> int:
 
 def start_server(kb: Path, port: int, image_encoder: str, log: Path) -> subprocess.Popen[bytes]:
     """``craft serve`` in a subprocess (the same CLI a user runs), output to ``log``."""
-    code = "from craft_e.runtime.cli import app; app(prog_name='craft')"
+    code = "from craft_e.runtime.cli.main import app; app(prog_name='craft')"
     cmd = [sys.executable, "-c", code, "serve", "--kb", str(kb), "--host", "127.0.0.1",
            "--port", str(port), "--image-encoder", image_encoder, "--log-level", "warning"]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}

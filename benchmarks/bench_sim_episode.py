@@ -26,17 +26,22 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from craft_e.paths import REPO_ROOT
+from craft_e.runtime.evaluation.methods import build_grounders, load_methods, select_methods
 from craft_e.runtime.evaluation.sim_eval import (
-    build_grounders,
     default_encoder,
-    load_methods,
     load_sim_labels,
     make_episode_specs,
-    select_methods,
 )
+from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import execute_pick
-from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, grounding_rois, perceive
+from craft_e.runtime.sim.pipeline import (
+    PipelineConfig,
+    SavedStart,
+    grounding_rois,
+    perceive,
+    sim_vocabulary,
+)
 
 
 @dataclass
@@ -66,7 +71,7 @@ def main() -> None:
     config = PipelineConfig(grasp=args.grasp)
     encoder = default_encoder(config.torch_threads)
     runnable, _ = load_methods(select_methods(), encoder.text_encoder_id)
-    grounders = build_grounders(runnable)
+    grounders = build_grounders(runnable, GroundingSettings(), sim_vocabulary())
     labels = load_sim_labels(args.labels)
     specs = make_episode_specs(labels, layouts=3)[: args.episodes]
     timings: list[EpisodeTiming] = []

@@ -41,9 +41,13 @@ from craft_e.compiler.rdf import graph_turtle
 from craft_e.compiler.sources.llm import LLMSource, Transport
 from craft_e.compiler.vocab import Vocabulary, read_vocabulary
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
-from craft_e.runtime.energies import EnergyForm, affordance_energy_matrix
-from craft_e.runtime.kb_diagnostics import diagnostics_model
-from craft_e.runtime.open_world import fit_open_world, open_world_json
+from craft_e.runtime.grounding.energies import (
+    FORBIDDEN_ENERGY,
+    EnergyForm,
+    affordance_energy_matrix,
+)
+from craft_e.runtime.grounding.open_world import fit_open_world, open_world_json
+from craft_e.runtime.kb.diagnostics import diagnostics_model
 from craft_e.schemas.v1.bundle import (
     UNSEALED,
     BuildInfo,
@@ -56,7 +60,6 @@ from craft_e.schemas.v1.bundle import (
 
 KnowledgeMode = Literal["llm", "conceptnet", "direct", "llm+direct"]
 VERB_TEMPLATE = "something to {verb}"
-FORBIDDEN_ENERGY = 1.0  # "never pick X for V": the worst possible E_aff
 
 
 class BuildConfig(BaseModel):

@@ -26,10 +26,14 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
 from craft_e.schemas.v1.records import Record
+
+if TYPE_CHECKING:
+    from craft_e.compiler.prompts import PromptTemplate
 
 
 class CacheError(RuntimeError):
@@ -302,12 +306,46 @@ class RecordCache:
         return record
 
 
+def extract_json(text: str) -> Any:
+    """Parse the model's answer as JSON, tolerating a fenced code block around it."""
+    stripped = text.strip()
+    if stripped.startswith("```"):
+        stripped = stripped.split("\n", 1)[1] if "\n" in stripped else ""
+        stripped = stripped.rsplit("```", 1)[0]
+    return json.loads(stripped)
+
+
+def check_payload(record: Record, template: PromptTemplate) -> Record:
+    """A stored record is used only if its payload is what its raw response says.
+
+    The payload is what builds read; the raw response is what the model (or curator) wrote.
+    A payload edited by hand afterwards no longer equals the validated parse of the raw
+    response, and is refused (``CacheError``) instead of silently entering a bundle.
+    """
+    where = f"record {record.key} ({record.request.prompt}, subject={record.request.subject!r})"
+    try:
+        parsed = extract_json(record.raw_response)
+    except ValueError:
+        raise CacheError(f"{where}: raw_response is not JSON; the record was edited") from None
+    if parsed == record.payload:
+        return record
+    try:
+        validated = template.payload_model.model_validate(parsed).model_dump(mode="json")
+    except ValidationError:
+        validated = None
+    if validated != record.payload:
+        raise CacheError(
+            f"{where}: payload differs from the validated parse of raw_response (the answer "
+            "was edited after recording); restore the record file or record the prompt again"
+        )
+    return record
+
+
 def _check_llm_payload(record: Record) -> None:
     """``verify`` also checks an LLM record's payload against its raw response."""
     if record.source != "llm":
         return
     from craft_e.compiler.prompts import PromptError, load_prompt
-    from craft_e.compiler.sources.llm import check_payload
 
     prompt_id, _, version = record.request.prompt.partition("@")
     try:

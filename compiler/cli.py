@@ -11,7 +11,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, Literal, NoReturn
+from typing import Annotated, Literal
 
 import typer
 from rich.console import Console
@@ -25,8 +25,11 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from craft_e.compiler.cli_diagnose import register as register_diagnose
+from craft_e.compiler.cli_pack import register as register_pack
 from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
 from craft_e.paths import CACHE_DIR, VOCAB_DIR
+from craft_e.runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
 
 app = typer.Typer(
     help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
@@ -40,20 +43,10 @@ curate_app = typer.Typer(
 )
 app.add_typer(cache_app, name="cache")
 app.add_typer(curate_app, name="curate")
-err = Console(stderr=True)
 stdout = Console()
 
-EXIT_CHECK_FAILED = 1
-EXIT_BAD_INPUT = 2
 EXIT_SOURCE_FAILED = 3
 PROVIDERS = ("replay", "openai", "gemini")
-
-
-def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    # User text (paths, names, messages quoting input) is printed literally, never as markup:
-    # "[/x]" in a path must neither raise MarkupError nor lose its brackets.
-    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
 
 
 PromptsOpt = Annotated[
@@ -126,7 +119,7 @@ def build(
     energy_form: Annotated[
         str, typer.Option(
             help="sum-tanh (paper, default) | normalized-product | specificity | required-veto "
-            "| specificity-veto (runtime/energies.py)."
+            "| specificity-veto (runtime/grounding/energies.py)."
         )
     ] = "sum-tanh",
     cache: CacheOpt = CACHE_DIR,
@@ -242,7 +235,7 @@ def _progress(quiet: bool) -> Progress:
 @app.command()
 def validate(bundle: Annotated[Path, typer.Argument(help="Bundle folder.")]) -> None:
     """Verify a bundle: schema, per-file sha256, content hash, internal consistency."""
-    from craft_e.runtime.bundle import BundleError, load_bundle
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     try:
         kb = load_bundle(bundle, check_encoder=False)
@@ -278,7 +271,7 @@ def diff(
         parse_rules,
         render_markdown,
     )
-    from craft_e.runtime.bundle import BundleError, load_bundle
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     if format not in ("md", "json"):
         fail(f"unknown format {format!r}; use md or json")
@@ -306,8 +299,8 @@ def explain(
     obj: Annotated[str, typer.Argument(metavar="OBJECT", help="Object, e.g. knife.")],
 ) -> None:
     """Print the verb -> property -> object paths behind E_aff(verb, object)."""
-    from craft_e.runtime.bundle import BundleError, load_bundle
-    from craft_e.runtime.explain import UnknownNameError, explain_pair
+    from craft_e.runtime.grounding.explain import UnknownNameError, explain_pair
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     try:
         kb = load_bundle(bundle, check_encoder=False)
@@ -328,7 +321,7 @@ def review(
     """Print random verb -> property -> object paths with weights, for a human read."""
     import random
 
-    from craft_e.runtime.bundle import BundleError, load_bundle
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     try:
         kb = load_bundle(bundle, check_encoder=False)
@@ -516,17 +509,10 @@ def curate_pending(
     sys.stdout.write(json.dumps(pending, indent=1) + "\n")
 
 
-def _register_extensions() -> None:
-    """Commands that live in their own modules (packing/signing, diagnostics)."""
-    from craft_e.compiler.cli_pack import register as register_pack
-
-    register_pack(app)
-    from craft_e.compiler.cli_diagnose import register as register_diagnose
-
-    register_diagnose(app)
-
-
-_register_extensions()
+# Commands that live in their own modules (packing/signing, diagnostics); they import nothing
+# from this module.
+register_pack(app)
+register_diagnose(app)
 
 
 def main() -> None:  # pragma: no cover - console entry

@@ -1,6 +1,6 @@
 """``craftc diagnose BUNDLE``: discrimination diagnostics of any bundle, in one or every E_aff form.
 
-The same numbers as ``report.json``'s ``diagnostics`` (``craft_e.runtime.kb_diagnostics``), but
+The same numbers as ``report.json``'s ``diagnostics`` (``craft_e.runtime.kb.diagnostics``), but
 computed from the bundle's graph, so they work on bundles built before the report carried them
 and for E_aff forms other than the one the bundle was built with.
 """
@@ -30,11 +30,11 @@ def register(app: typer.Typer) -> None:
         format: Annotated[str, typer.Option("--format", help="md | json")] = "md",
     ) -> None:
         """Affordant and saturated shares, hub objects, dead properties, per-verb margins."""
-        from craft_e.compiler.cli import fail
-        from craft_e.runtime.bundle import BundleError, load_bundle
-        from craft_e.runtime.energies import ENERGY_FORMS, check_energy_form
-        from craft_e.runtime.grounding import affordance_energy_in_form
-        from craft_e.runtime.kb_diagnostics import bundle_diagnostics, markdown_summary
+        from craft_e.runtime.cli.common import fail
+        from craft_e.runtime.grounding.energies import ENERGY_FORMS, check_energy_form
+        from craft_e.runtime.grounding.grounder import affordance_energy_in_form
+        from craft_e.runtime.kb.bundle import BundleError, load_bundle
+        from craft_e.runtime.kb.diagnostics import bundle_diagnostics, markdown_summary
 
         if format not in ("md", "json"):
             fail(f"unknown format {format!r}; use md or json")

@@ -8,21 +8,13 @@ not verify, 2 for bad input (missing or malformed key, existing key on keygen).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 
-_err = Console(stderr=True)
-_out = Console()
-EXIT_CHECK_FAILED = 1
-EXIT_BAD_INPUT = 2
-
-
-def _fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
+from craft_e.runtime.cli.common import EXIT_CHECK_FAILED, err, fail
+from craft_e.runtime.cli.common import out as console
 
 
 def pack(
@@ -35,19 +27,19 @@ def pack(
     from craft_e.compiler.pack import PackError, UnverifiedBundleError, pack_bundle
 
     if compression not in ("gzip", "none"):
-        _fail(f"unknown compression {compression!r}; use gzip or none")
+        fail(f"unknown compression {compression!r}; use gzip or none")
     try:
         result = pack_bundle(
             bundle, key, out, compression="gzip" if compression == "gzip" else "none"
         )
     except UnverifiedBundleError as exc:
-        _fail(str(exc), EXIT_CHECK_FAILED)
+        fail(str(exc), EXIT_CHECK_FAILED)
     except PackError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     for note in result.notes:
-        _err.print(f"[yellow]warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
+        err.print(f"[yellow]warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
     s = result.statement
-    _out.print(
+    console.print(
         f"packed [bold]{escape(s.kb_name)}[/] {s.kb_version} -> {escape(str(result.out))} ({result.bytes} bytes)\n"
         f"  content sha256 {s.content_sha256}\n"
         f"  signed by key {result.key_id}",
@@ -66,10 +58,10 @@ def keygen(
     try:
         pair = make_keys(out)
     except PackError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except OSError as exc:
-        _fail(f"{out}: cannot write keys ({exc})")
-    _out.print(
+        fail(f"{out}: cannot write keys ({exc})")
+    console.print(
         f"wrote {pair.private_key} (private: keep it secret, mode 0600)\n"
         f"wrote {pair.public_key} (public: copy to robots, pass as --trusted-key)\n"
         f"  key id {pair.key_id}",

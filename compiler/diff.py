@@ -19,8 +19,8 @@ import re
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from craft_e.runtime.bundle import Bundle
-from craft_e.runtime.kb_diagnostics import HEADLINE, bundle_diagnostics, headline_value
+from craft_e.runtime.kb.bundle import Bundle
+from craft_e.runtime.kb.diagnostics import HEADLINE, bundle_diagnostics, headline_value
 
 #: Weight deltas are rounded to this many decimals before the threshold comparison, so that a
 #: change written as 0.2 -> 0.1 counts as exactly 0.1 (binary floats would say 0.1000...03).
@@ -54,26 +54,12 @@ class DiffError(ValueError):
 
 def _edges(bundle: Bundle) -> tuple[dict[Edge, float], dict[Edge, float]]:
     """``(verb, property) -> w_vp`` and ``(property, object) -> w_po`` from graph.json."""
-    vp: dict[Edge, float] = {}
-    po: dict[Edge, float] = {}
-    for edge in bundle.graph.get("edges", []):
-        src_kind, src = str(edge["source"]).split(":", 1)
-        _, dst = str(edge["target"]).split(":", 1)
-        weight = float(edge["weight"])
-        if src_kind == "verb":
-            vp[(src, dst)] = weight
-        elif src_kind == "prop":
-            po[(src, dst)] = weight
-    return vp, po
+    return bundle.graph.vp_weights(), bundle.graph.po_weights()
 
 
 def _forbidden(bundle: Bundle) -> set[Edge]:
     """``(verb, object)`` pairs an override marked "never pick"."""
-    pairs: set[Edge] = set()
-    for node in bundle.graph.get("nodes", []):
-        if node.get("kind") == "verb":
-            pairs.update((str(node["name"]), str(o)) for o in node.get("forbidden_objects", []))
-    return pairs
+    return set(bundle.graph.forbidden_pairs())
 
 
 def _added_removed(a: Iterable[str], b: Iterable[str]) -> Json:

@@ -12,6 +12,7 @@ from collections import defaultdict
 from collections.abc import Callable
 
 from craft_e.compiler.draft import KnowledgeDraft, Link
+from craft_e.compiler.graph import K_PROPERTIES
 from craft_e.compiler.prompts import (
     DEFAULT_PROMPT_VERSION,
     format_glossed_list,
@@ -31,7 +32,6 @@ from craft_e.schemas.v1.payloads import (
 )
 from craft_e.schemas.v1.records import Record
 
-K_PROPERTIES = 10
 Progress = Callable[[str, int], None]
 #: What the v2 object prompt says when a vocabulary entry carries no gloss.
 NO_GLOSS = "its most common everyday sense"

@@ -5,7 +5,7 @@ of who built it. Packing fixes both: the bundle's files go into a deterministic 
 order, zero mtimes and owners, gzip with mtime 0), and an Ed25519 signature over a statement
 binding kb name, version, content hash, manifest hash and the archive's own sha256 goes in a
 header *in front of* the archive, so the robot can authenticate everything before extracting.
-The container format is defined (and read) in :mod:`craft_e.runtime.package`; this module only
+The container format is defined (and read) in :mod:`craft_e.runtime.kb.package`; this module only
 writes it. The same bundle and key give a byte-identical package (Ed25519 is deterministic).
 """
 
@@ -21,8 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from craft_e.runtime.bundle import BundleError, read_manifest, verify_files
-from craft_e.runtime.package import (
+from craft_e.runtime.kb.package import (
     PackageError,
     PackageHeader,
     PackageSignature,
@@ -32,6 +31,7 @@ from craft_e.runtime.package import (
     statement_for,
     verify_package,
 )
+from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
 from craft_e.schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, Manifest
 
 SIGNING_KEY_FILE = "craft-signing.key"

@@ -13,6 +13,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from craft_e.schemas.v1.bundle import BuildInfo, BundleReport, Manifest
+from craft_e.schemas.v1.graph import KnowledgeGraph
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from craft_e.schemas.v1.records import Record
 
@@ -21,6 +22,7 @@ MODELS: dict[str, type[BaseModel]] = {
     "manifest": Manifest,
     "report": BundleReport,
     "build_info": BuildInfo,
+    "graph": KnowledgeGraph,
     "record": Record,
     "verb_properties": VerbProperties,
     "object_properties": ObjectProperties,

@@ -19,7 +19,7 @@ from craft_e.compiler.cli import app
 from craft_e.compiler.diff import diff_bundles
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE
-from craft_e.runtime.bundle import load_bundle
+from craft_e.runtime.kb.bundle import load_bundle
 from craft_e.schemas.generate import SCHEMA_DIR, generate_all
 
 runner = CliRunner()
@@ -230,7 +230,7 @@ def test_validate_missing_file_and_not_a_bundle(kb_a: FixtureKB, tmp_path: Path)
 
 
 def test_explain(kb_a: FixtureKB) -> None:
-    pytest.importorskip("craft_e.runtime.explain", reason="runtime/explain.py not written yet")
+    pytest.importorskip("craft_e.runtime.grounding.explain", reason="runtime/grounding/explain.py not written yet")
     result = craftc("explain", kb_a.bundle, "cut", "knife")
     assert result.exit_code == 0, result.output
     for name in ("cut", "knife", "sharp edge", "has a blade"):

@@ -31,8 +31,8 @@ from craft_e.compiler.build import VERB_TEMPLATE, build
 from craft_e.compiler.embed import EmbeddingCache
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, MissingRecordError
-from craft_e.runtime.bundle import load_bundle
 from craft_e.runtime.encoders.text import MINILM_ID
+from craft_e.runtime.kb.bundle import load_bundle
 from craft_e.schemas.v1.bundle import BUILD_INFO_FILE, BUNDLE_FILES, MANIFEST_FILE
 
 ALL_FILES = {*BUNDLE_FILES, MANIFEST_FILE, BUILD_INFO_FILE}

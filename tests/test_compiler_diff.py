@@ -27,7 +27,7 @@ from craft_e.compiler.diff import (
     render_markdown,
     top_objects,
 )
-from craft_e.runtime.bundle import Bundle, load_bundle
+from craft_e.runtime.kb.bundle import Bundle, load_bundle
 
 EXPECTED = FIXTURES / "diff"
 ALL_RULES = ["top1-changed", "verb-removed", "any-change", "edges-removed>0", "weight-changes>0"]

@@ -16,16 +16,18 @@ import numpy as np
 import pytest
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 
-from craft_e.runtime.bundle import load_bundle
-from craft_e.runtime.energies import (
+from craft_e.runtime.grounding.energies import (
     ENERGY_FORMS,
     affordance_energy_matrix,
     check_energy_form,
     property_specificity,
     required_matrix_from_graph,
 )
-from craft_e.runtime.grounding import Grounder, affordance_energy_in_form
+from craft_e.runtime.grounding.grounder import Grounder, affordance_energy_in_form
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.kb.bundle import load_bundle
 from craft_e.schemas.v1.bundle import EnergyInfo
+from craft_e.schemas.v1.graph import GraphEdge, KnowledgeGraph
 
 W_VP = np.array([[1.0, 0.5, 0.0], [0.0, 0.4, 0.8]], dtype=np.float32)
 W_PO = np.array(
@@ -106,12 +108,12 @@ def test_unknown_form_is_an_error_listing_the_forms() -> None:
 
 
 def test_required_matrix_from_graph() -> None:
-    graph = {"edges": [
-        {"source": "verb:cut", "target": "prop:sharp edge", "weight": 0.9, "role": "required"},
-        {"source": "verb:cut", "target": "prop:has a handle", "weight": 0.4, "role": "helpful"},
-        {"source": "verb:pour", "target": "prop:has a spout", "weight": 0.8},  # v1: no role
-        {"source": "prop:sharp edge", "target": "obj:knife", "weight": 0.95},
-    ]}  # fmt: skip
+    graph = KnowledgeGraph(nodes=[], edges=[
+        GraphEdge(source="verb:cut", target="prop:sharp edge", weight=0.9, provenance=[], role="required"),
+        GraphEdge(source="verb:cut", target="prop:has a handle", weight=0.4, provenance=[], role="helpful"),
+        GraphEdge(source="verb:pour", target="prop:has a spout", weight=0.8, provenance=[]),  # v1: no role
+        GraphEdge(source="prop:sharp edge", target="obj:knife", weight=0.95, provenance=[]),
+    ])  # fmt: skip
     req = required_matrix_from_graph(graph, ["cut", "pour"], ["has a handle", "has a spout", "sharp edge"])
     assert req.tolist() == [[False, False, True], [False, False, False]]
 
@@ -119,11 +121,11 @@ def test_required_matrix_from_graph() -> None:
 @pytest.mark.parametrize("form", ENERGY_FORMS)
 def test_grounder_accepts_every_form(runtime_kbs: RuntimeKBs, form: str) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    grounder = Grounder(kb, energy_form=form)  # type: ignore[arg-type]
+    grounder = Grounder(kb, GroundingSettings(energy_form=form))
     assert grounder.energy_form == form
     matrix = affordance_energy_in_form(kb, form)  # type: ignore[arg-type]
     assert matrix.shape == kb.energy.shape and (matrix <= 1.0).all() and (matrix >= -1.0).all()
     # the "never pick" override holds in every form
     assert matrix[kb.verb_index["cut"], kb.object_index["umbrella"]] == 1.0
-    with pytest.raises(ValueError, match="unknown E_aff form"):
-        Grounder(kb, energy_form="veto")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="energy_form"):
+        Grounder(kb, GroundingSettings(energy_form="veto"))

@@ -13,13 +13,12 @@ from runtime_fixtures import DEV_LABELS, RuntimeKBs, conse_fixture, runtime_kbs_
 from craft_e.runtime.evaluation.common import ndcg, reciprocal_rank, topk_accuracy
 from craft_e.runtime.evaluation.imagenet import (
     LabelsError,
-    MethodSpec,
-    default_methods,
     evaluate_imagenet,
     load_dataset,
     load_labels,
     make_episodes,
 )
+from craft_e.runtime.evaluation.methods import MethodSpec, default_methods
 
 
 def pool(kbs: RuntimeKBs) -> list[str]:

@@ -10,8 +10,7 @@ import pytest
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 from typer.testing import CliRunner
 
-from craft_e.runtime.cli import app
-from craft_e.runtime.energies import ENERGY_FORMS
+from craft_e.runtime.cli.main import app
 from craft_e.runtime.evaluation.kb_eval import (
     KBLabelsError,
     Scored,
@@ -22,6 +21,7 @@ from craft_e.runtime.evaluation.kb_eval import (
     json_labels,
     leave_verbs_out,
 )
+from craft_e.runtime.grounding.energies import ENERGY_FORMS
 
 
 def test_auc_by_hand() -> None:

@@ -9,11 +9,11 @@ from typing import Any
 import pytest
 
 from craft_e.paths import REPO_ROOT
+from craft_e.runtime.evaluation.methods import select_methods
 from craft_e.runtime.evaluation.sim_eval import (
     LabelsError,
     load_sim_labels,
     make_episode_specs,
-    select_methods,
 )
 from craft_e.runtime.sim.assets import object_catalog
 
@@ -66,7 +66,7 @@ def test_method_selection() -> None:
 def _run_cli(tmp_path: Path, name: str) -> dict[str, Any]:
     from typer.testing import CliRunner
 
-    from craft_e.runtime.cli import app
+    from craft_e.runtime.cli.main import app
 
     labels = tmp_path / "labels.csv"  # the same file for both runs: its path is in the JSON
     if not labels.exists():

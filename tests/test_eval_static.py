@@ -71,7 +71,7 @@ def test_noise_levels_parse() -> None:
 def test_cli_runs_the_three_settings_with_noise(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from craft_e.runtime.cli import app
+    from craft_e.runtime.cli.main import app
 
     labels = tmp_path / "labels.csv"
     labels.write_text("cut,knife\n")

@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from craft_e.paths import KB_DIR, shared_dir
-from craft_e.runtime.cli import app
+from craft_e.runtime.cli.main import app
 from craft_e.runtime.evaluation.zhu import (
     ZHU_AFFORDANCES,
     average_precision,

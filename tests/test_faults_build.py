@@ -46,7 +46,7 @@ from typer.testing import CliRunner
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.cli import app as craftc_app
 from craft_e.compiler.sources.llm import LLM_SOURCE
-from craft_e.runtime.bundle import load_bundle
+from craft_e.runtime.kb.bundle import load_bundle
 from craft_e.schemas.v1.payloads import ObjectProperties, VerbProperties
 
 MODEL = "fake-llm-v1"

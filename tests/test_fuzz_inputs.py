@@ -43,8 +43,8 @@ from craft_e.compiler.curate import CurationError, record_answers
 from craft_e.compiler.pack import archive_bytes, keygen, load_signing_key, pack_bundle, seal
 from craft_e.compiler.sources.llm import LLMSource
 from craft_e.compiler.vocab import VocabError, read_vocabulary
-from craft_e.runtime.bundle import BundleError, load_bundle, read_manifest, verify_files
-from craft_e.runtime.package import PackageError, unpack_package, verify_package
+from craft_e.runtime.kb.bundle import BundleError, load_bundle, read_manifest, verify_files
+from craft_e.runtime.kb.package import PackageError, unpack_package, verify_package
 from craft_e.schemas.names import normalize_name, normalize_verb
 from craft_e.schemas.v1.bundle import Manifest
 
@@ -424,6 +424,7 @@ BUNDLE_FILE_NAMES = [
     "affordance_energy.npy",
     "report.json",
     "build_info.json",
+    "open_world.json",
 ]
 JSON_VALUES = st.recursive(
     st.none()

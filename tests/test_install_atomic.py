@@ -20,15 +20,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import typer
 from typer.testing import CliRunner
 
 from craft_e.compiler.pack import keygen, pack_bundle
-from craft_e.runtime import install as install_mod
-from craft_e.runtime import package as package_mod
-from craft_e.runtime.bundle import load_bundle
-from craft_e.runtime.cli_install import register
-from craft_e.runtime.install import (
+from craft_e.runtime.cli.main import app as craft_app
+from craft_e.runtime.kb import install as install_mod
+from craft_e.runtime.kb import package as package_mod
+from craft_e.runtime.kb.bundle import load_bundle
+from craft_e.runtime.kb.install import (
     DamagedVersionError,
     InstallError,
     current,
@@ -36,7 +35,7 @@ from craft_e.runtime.install import (
     installed,
     rollback,
 )
-from craft_e.runtime.package import DestinationError, PackageError
+from craft_e.runtime.kb.package import DestinationError, PackageError
 
 # make_bundle lives beside the package tests; resolve it whether tests/ is a package or not
 make_bundle = importlib.import_module(
@@ -243,8 +242,8 @@ def test_crash_between_unpack_and_switch(
 KILL_SCRIPT = textwrap.dedent(
     """
     import sys, time, pathlib
-    import craft_e.runtime.package as package
-    from craft_e.runtime.install import install
+    import craft_e.runtime.kb.package as package
+    from craft_e.runtime.kb.install import install
 
     real = package._write_member
 
@@ -318,8 +317,7 @@ def test_foreign_current_is_refused(
 def test_cli_install_rollback_installed(
     tmp_path: Path, packages: list[Path], keys: tuple[Path, Path]
 ) -> None:
-    app = typer.Typer()
-    register(app)
+    app = craft_app
     runner = CliRunner()
     into = str(tmp_path / "kb")
     pub = str(keys[1])
@@ -356,8 +354,8 @@ def test_runtime_side_imports_neither_compiler_nor_network_libraries() -> None:
     """The robot installs and loads packages with the runtime alone (DESIGN: no compiler there)."""
     code = (
         "import sys\n"
-        "import craft_e.runtime.cli_install, craft_e.runtime.install, craft_e.runtime.package\n"
-        "from craft_e.runtime.bundle import load_bundle\n"
+        "import craft_e.runtime.cli.install, craft_e.runtime.kb.install, craft_e.runtime.kb.package\n"
+        "from craft_e.runtime.kb.bundle import load_bundle\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('httpx', 'rdflib')"
         " or m.startswith('craft_e.compiler'))\n"
         "print(bad)\n"

@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 from craft_e.compiler.cli import app
 from craft_e.compiler.diff import diff_bundles, render_markdown
-from craft_e.runtime.bundle import load_bundle
-from craft_e.runtime.kb_diagnostics import discrimination_diagnostics, top_k_credit
+from craft_e.runtime.kb.bundle import load_bundle
+from craft_e.runtime.kb.diagnostics import discrimination_diagnostics, top_k_credit
 from craft_e.schemas.v1.bundle import BundleReport, Diagnostics
 
 OBJECTS = ["a", "b", "c", "d", "e", "f"]

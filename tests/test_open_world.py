@@ -14,21 +14,22 @@ from fastapi.testclient import TestClient
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
 from typer.testing import CliRunner
 
-from craft_e.runtime.bundle import load_bundle
-from craft_e.runtime.energies import (
+from craft_e.runtime.grounding.energies import (
     ENERGY_FORMS,
     affordance_energy_matrix,
     energy_from_property_columns,
     property_specificity,
 )
-from craft_e.runtime.grounding import ROI, Grounder
-from craft_e.runtime.open_world import (
+from craft_e.runtime.grounding.grounder import ROI, Grounder
+from craft_e.runtime.grounding.open_world import (
     OPEN_WORLD_FILE,
     fit_open_world,
     open_world_json,
     parse_request,
 )
-from craft_e.runtime.serve import build_service, create_app
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.kb.bundle import load_bundle
+from craft_e.runtime.serve.app import build_service, create_app
 from craft_e.schemas.v1.bundle import listed_files_ok
 
 NONSENSE = "qzx vrrk"
@@ -72,7 +73,7 @@ def test_bundle_ships_and_hashes_the_model(runtime_kbs: RuntimeKBs) -> None:
 def test_tampered_model_is_refused(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
     import shutil
 
-    from craft_e.runtime.bundle import BundleError
+    from craft_e.runtime.kb.bundle import BundleError
 
     copy = tmp_path / "kb"
     shutil.copytree(runtime_kbs.kb, copy)
@@ -89,7 +90,7 @@ def _rois(g: Grounder, names: list[str]) -> list[ROI]:
 
 def test_unknown_object_is_inferred_from_similar_objects(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, vocabulary=["meat cleaver", "banana", NONSENSE], object_min_confidence=0.0)
+    g = Grounder(kb, GroundingSettings(vocabulary=["meat cleaver", "banana", NONSENSE]), object_min_confidence=0.0)
     inf = g.inferred["meat cleaver"]
     assert inf.confident and inf.neighbours[0][0] == "cleaver"
     res = g.ground("cut", _rois(g, ["meat cleaver", "banana"]))
@@ -103,7 +104,7 @@ def test_unknown_object_is_inferred_from_similar_objects(runtime_kbs: RuntimeKBs
 
 def test_unknown_object_without_confidence_is_flagged_not_guessed(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, vocabulary=["banana", NONSENSE], object_min_confidence=0.99)
+    g = Grounder(kb, GroundingSettings(vocabulary=["banana", NONSENSE]), object_min_confidence=0.99)
     col = g.vocabulary.index(NONSENSE)
     assert not g.inferred[NONSENSE].confident and not g._eaff[:, col].any()  # E_aff = 0: alignment alone
     res = g.ground("cut", _rois(g, [NONSENSE]))
@@ -119,7 +120,7 @@ def test_parse_request() -> None:
 
 def test_phrase_is_mapped_to_properties_with_paths(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, open_vocab=True, request_min_confidence=0.0)
+    g = Grounder(kb, GroundingSettings(open_vocab=True), request_min_confidence=0.0)
     assert g.ground("give me something to cut", _rois(g, ["cleaver"])).request is None  # a KB verb
     res = g.ground("chop firewood", _rois(g, ["hatchet", "banana", "violin"]))
     assert res.request is not None and not res.abstained and res.open_vocab_used
@@ -133,7 +134,7 @@ def test_phrase_is_mapped_to_properties_with_paths(runtime_kbs: RuntimeKBs) -> N
 
 def test_low_confidence_request_abstains(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, open_vocab=True, request_min_confidence=0.99)
+    g = Grounder(kb, GroundingSettings(open_vocab=True), request_min_confidence=0.99)
     res = g.ground("decorate", _rois(g, ["hatchet", "banana"]))
     assert res.abstained and res.chosen is None and all(r.e_aff == 0.0 for r in res.ranked)
     assert "I don't know what 'decorate' needs" in res.render()
@@ -141,7 +142,7 @@ def test_low_confidence_request_abstains(runtime_kbs: RuntimeKBs) -> None:
 
 
 def test_serve_accepts_phrases_and_unknown_objects(runtime_kbs: RuntimeKBs) -> None:
-    svc = build_service(runtime_kbs.kb, open_vocab=True, image_encoder=None)
+    svc = build_service(runtime_kbs.kb, image_encoder=None, settings=GroundingSettings(open_vocab=True))
     g = svc.grounders[svc.default_form]
     emb = g._encoder().embed(["meat cleaver", "banana"])
     rois = [{"box_xywh": [0, 0, 5, 5], "grasp_scores": [0.9], "image_embedding": emb[0].tolist()},
@@ -163,7 +164,7 @@ def test_serve_accepts_phrases_and_unknown_objects(runtime_kbs: RuntimeKBs) -> N
 
 
 def test_cli_ground_accepts_phrases_and_unknown_objects(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
-    from craft_e.runtime.cli import app
+    from craft_e.runtime.cli.main import app
 
     vocab = tmp_path / "vocab.txt"
     vocab.write_text("meat cleaver\nbanana\nviolin\n")

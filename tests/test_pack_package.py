@@ -35,9 +35,9 @@ from craft_e.compiler.pack import (
     pack_bundle,
     seal,
 )
-from craft_e.runtime.bundle import BundleError, load_bundle
 from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
-from craft_e.runtime.package import (
+from craft_e.runtime.kb.bundle import BundleError, load_bundle
+from craft_e.runtime.kb.package import (
     PACKAGE_MAGIC,
     Limits,
     PackageError,
@@ -493,7 +493,7 @@ def test_file_swapped_after_verification_is_caught(
     tmp_path: Path, bundle: Path, keys: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The payload is re-hashed while it is extracted, so a verify-then-swap race fails."""
-    import craft_e.runtime.package as package_mod
+    import craft_e.runtime.kb.package as package_mod
 
     pkg = pack_bundle(bundle, keys[0], tmp_path / "kb.craft", compression="none").out
     real = package_mod._verify_open

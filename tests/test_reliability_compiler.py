@@ -221,7 +221,7 @@ def test_error_text_keeps_brackets(kb_a: FixtureKB, tmp_path: Path) -> None:
 def test_craft_cli_prints_user_text_literally(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from craft_e.runtime.cli import app as craft_app
+    from craft_e.runtime.cli.main import app as craft_app
 
     into = tmp_path / "[/x]" / "[bold]kb"
     result = CliRunner().invoke(craft_app, ["rollback", "--into", str(into)], env={"COLUMNS": "2000"})

@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import typer
 from typer.testing import CliRunner
 
 from craft_e.compiler.emit import model_json
@@ -36,11 +35,11 @@ from craft_e.compiler.pack import (
     pack_bundle,
     seal,
 )
-from craft_e.runtime import install as install_mod
-from craft_e.runtime.bundle import BundleError, load_bundle, read_manifest
-from craft_e.runtime.cli_install import register
-from craft_e.runtime.install import DowngradeError, current, install, rollback
-from craft_e.runtime.package import PackageError, unpack_package, verify_package
+from craft_e.runtime.cli.main import app as craft_app
+from craft_e.runtime.kb import install as install_mod
+from craft_e.runtime.kb.bundle import BundleError, load_bundle, read_manifest
+from craft_e.runtime.kb.install import DowngradeError, current, install, rollback
+from craft_e.runtime.kb.package import PackageError, unpack_package, verify_package
 from craft_e.schemas.names import normalize_name, normalize_verb
 from craft_e.schemas.v1.bundle import MANIFEST_FILE, FileDigest, sealed
 
@@ -66,8 +65,7 @@ def packages(tmp_path_factory: pytest.TempPathFactory, keys: tuple[Path, Path]) 
 
 
 def craft(*args: str | Path) -> Any:
-    app = typer.Typer()
-    register(app)
+    app = craft_app
     return CliRunner().invoke(app, [str(a) for a in args], env={"COLUMNS": "2000"})
 
 

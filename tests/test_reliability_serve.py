@@ -18,7 +18,7 @@ import pytest
 from fastapi.testclient import TestClient
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 
-from craft_e.runtime.serve import GroundingService, build_service, create_app
+from craft_e.runtime.serve.app import GroundingService, build_service, create_app
 
 
 class FakeImageEncoder:
@@ -152,8 +152,8 @@ def test_the_grounder_never_chooses_an_roi_whose_grasps_all_score_zero(
     runtime_kbs: RuntimeKBs,
 ) -> None:
     """Issue 12 item 13 for the Python API (and so ``craft ground`` and the sim), not only serve."""
-    from craft_e.runtime.bundle import load_bundle
-    from craft_e.runtime.grounding import ROI, Grounder
+    from craft_e.runtime.grounding.grounder import ROI, Grounder
+    from craft_e.runtime.kb.bundle import load_bundle
 
     kb = load_bundle(runtime_kbs.kb, check_encoder=False)
     emb = np.ones(kb.manifest.text_encoder.dim, dtype=np.float32)

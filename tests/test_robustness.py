@@ -13,7 +13,8 @@ import pytest
 from runtime_fixtures import RuntimeKBs, conse_fixture, runtime_kbs_fixture  # noqa: F401
 from typer.testing import CliRunner
 
-from craft_e.runtime.evaluation.imagenet import MethodSpec, evaluate_imagenet
+from craft_e.runtime.evaluation.imagenet import evaluate_imagenet
+from craft_e.runtime.evaluation.methods import MethodSpec
 from craft_e.runtime.evaluation.robustness import (
     NOISE_KINDS,
     NoiseKind,
@@ -215,17 +216,13 @@ def test_tiny_robustness_run(runtime_kbs: RuntimeKBs, conse: Any, tmp_path: Path
 
 
 def test_cli_robustness_imagenet(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
-    import typer
-
-    from craft_e.runtime.cli_robustness import register
+    from craft_e.runtime.cli.main import app
 
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"], "play": ["violin", "flute", "drum"]}))
     classes = tmp_path / "classes.txt"
     classes.write_text("\n".join(runtime_kbs.objects))
-    app = typer.Typer()
-    register(app)
-    args = ["robustness", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
+    args = ["eval", "robustness", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
             "--kb-dir", str(tmp_path / "no-baselines"), "--classes", str(classes), "--episodes", "5",
             "--levels", "blur=4", "--no-cache", "--threads", "1"]
     out = [tmp_path / "r.json", tmp_path / "r.png", tmp_path / "r.md"]
@@ -240,7 +237,7 @@ def test_cli_robustness_imagenet(runtime_kbs: RuntimeKBs, tmp_path: Path) -> Non
 
 
 def test_craft_eval_has_the_robustness_group() -> None:
-    from craft_e.runtime.cli import app
+    from craft_e.runtime.cli.main import app
 
     r = CliRunner().invoke(app, ["eval", "robustness", "imagenet", "--help"])
     assert r.exit_code == 0 and "--levels" in r.output

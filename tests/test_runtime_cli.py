@@ -6,10 +6,12 @@ import json
 from pathlib import Path
 
 import pytest
+import typer
 from runtime_fixtures import DEV_LABELS, RUNTIME_KB, RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
 from typer.testing import CliRunner
 
-from craft_e.runtime.cli import app, eval_app, parse_box, sim_app
+from craft_e.runtime.cli.ground import parse_box
+from craft_e.runtime.cli.main import app, eval_app, sim_app
 
 runner = CliRunner()
 
@@ -78,10 +80,22 @@ def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
     assert "| CRAFT | skipped" in md.read_text()
 
 
-def test_sub_apps_exist_for_other_commands() -> None:
+def _commands(group: typer.Typer) -> set[str]:
+    names = {c.name or (c.callback.__name__ if c.callback else "") for c in group.registered_commands}
+    return names | {f"{g.name}/{n}" for g in group.registered_groups if g.typer_instance
+                    for n in _commands(g.typer_instance)}
+
+
+def test_every_command_is_wired_and_answers_help() -> None:
+    """The whole ``craft`` tree, spelled out: a command module that is not wired into ``main``
+    (or a group that lost a command) fails here, and each command's options parse."""
     assert parse_box(" 1, 2,3,4 ") == (1.0, 2.0, 3.0, 4.0)
-    assert runner.invoke(app, ["eval", "--help"]).exit_code == 0
-    assert eval_app is not None and sim_app is not None
-    assert "imagenet" in runner.invoke(app, ["eval", "--help"]).output
-    assert "ground" in runner.invoke(app, ["--help"]).output
+    expected = {"ground", "install", "rollback", "installed", "serve",
+                "eval/imagenet", "eval/sim", "eval/static", "eval/zhu", "eval/kb", "eval/open-world",
+                "eval/robustness/imagenet", "sim/demo"}
+    assert _commands(app) == expected
+    for path in expected:
+        r = runner.invoke(app, [*path.split("/"), "--help"])
+        assert r.exit_code == 0, (path, r.output)
+    assert _commands(eval_app) >= {"imagenet", "robustness/imagenet"} and _commands(sim_app) == {"demo"}
     _ = DEV_LABELS

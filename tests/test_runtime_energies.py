@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 from runtime_fixtures import TAU, RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 
-from craft_e.runtime.bundle import load_bundle
-from craft_e.runtime.energies import (
+from craft_e.runtime.grounding.energies import (
     affordance_energy_matrix,
-    forbidden_pairs,
     grasp_energy,
     object_hypotheses,
     weight_matrices_from_graph,
 )
-from craft_e.runtime.grounding import Grounder
+from craft_e.runtime.grounding.grounder import Grounder
+from craft_e.runtime.kb.bundle import load_bundle
 
 FORBIDDEN = ("cut", "umbrella")
 
@@ -81,7 +80,7 @@ def test_weights_from_graph_and_forbidden(runtime_kbs: RuntimeKBs) -> None:
     p = m.properties.index("sharp edge")
     assert w_vp[m.verbs.index("cut"), p] == pytest.approx(0.95)
     assert w_po[p, m.objects.index("cleaver")] == pytest.approx(1.0)
-    assert forbidden_pairs(kb.graph) == [FORBIDDEN]
+    assert kb.graph.forbidden_pairs() == [FORBIDDEN]
     raw = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau)
     assert raw[m.verbs.index("cut"), m.objects.index("umbrella")] < 0  # 1.0 only after the override
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 
-from craft_e.runtime.bundle import load_bundle
-from craft_e.runtime.explain import UnknownNameError, explain_pair
+from craft_e.runtime.grounding.explain import UnknownNameError, explain_pair
+from craft_e.runtime.kb.bundle import load_bundle
 
 
 def test_explain_pair_renders_paths_with_weights_and_records(runtime_kbs: RuntimeKBs) -> None:

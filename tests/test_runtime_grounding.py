@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture, shared_image  # noqa: F401
 
-from craft_e.runtime.bundle import BundleError, load_bundle
-from craft_e.runtime.grounding import ROI, Grounder, UnknownVerbError
+from craft_e.runtime.grounding.grounder import ROI, Grounder, UnknownVerbError
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
 
 def obj_emb(kbs: RuntimeKBs, name: str) -> np.ndarray[Any, np.dtype[np.float32]]:
@@ -24,7 +25,7 @@ def obj_emb(kbs: RuntimeKBs, name: str) -> np.ndarray[Any, np.dtype[np.float32]]
 
 def test_energies_of_one_roi_by_hand(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, temperature=0.07)
+    g = Grounder(kb, GroundingSettings(temperature=0.07))
     e = obj_emb(runtime_kbs, "hatchet")
     res = g.ground("cut", [ROI((0, 0, 10, 10), [0.2, 0.8], image_embedding=e)])
     r = res.ranked[0]
@@ -47,7 +48,7 @@ def test_weights_scale_terms(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
     rois = [ROI((0, 0, 1, 1), [0.5], image_embedding=obj_emb(runtime_kbs, "cup"))]
     base = Grounder(kb).ground("pour", rois).ranked[0]
-    w = Grounder(kb, alpha=2, beta=0.5, gamma=0).ground("pour", rois).ranked[0]
+    w = Grounder(kb, GroundingSettings(alpha=2, beta=0.5, gamma=0)).ground("pour", rois).ranked[0]
     assert w.total == pytest.approx(2 * base.e_grasp + 0.5 * base.e_aff, abs=1e-5)
 
 
@@ -82,20 +83,20 @@ def test_expected_vs_argmax(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
     mix = obj_emb(runtime_kbs, "cup") + obj_emb(runtime_kbs, "banana")
     roi = [ROI((0, 0, 1, 1), [1.0], image_embedding=mix)]
-    exp = Grounder(kb, temperature=0.5, aff_mode="expected").ground("eat", roi).ranked[0]
-    arg = Grounder(kb, temperature=0.5, aff_mode="argmax").ground("eat", roi).ranked[0]
+    exp = Grounder(kb, GroundingSettings(temperature=0.5, aff_mode="expected")).ground("eat", roi).ranked[0]
+    arg = Grounder(kb, GroundingSettings(temperature=0.5, aff_mode="argmax")).ground("eat", roi).ranked[0]
     row = kb.energy[kb.verb_index["eat"]]
     assert arg.e_aff == pytest.approx(float(row[kb.object_index[arg.hypotheses[0].name]]), abs=1e-6)
     assert exp.e_aff != pytest.approx(arg.e_aff, abs=1e-3)
     assert min(row) <= exp.e_aff <= max(row)
     assert exp.e_align == pytest.approx(arg.e_align)
     with pytest.raises(ValueError, match="aff_mode"):
-        Grounder(kb, aff_mode="mean")  # type: ignore[arg-type]
+        Grounder(kb, GroundingSettings(aff_mode="mean"))
 
 
 def test_forbidden_pair_is_flagged(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    res = Grounder(kb, aff_mode="argmax").ground("cut", [ROI((0, 0, 1, 1), [1.0], image_embedding=obj_emb(runtime_kbs, "umbrella"))])
+    res = Grounder(kb, GroundingSettings(aff_mode="argmax")).ground("cut", [ROI((0, 0, 1, 1), [1.0], image_embedding=obj_emb(runtime_kbs, "umbrella"))])
     assert res.ranked[0].forbidden and res.ranked[0].e_aff == 1.0
     assert "[forbidden]" in res.render()
 
@@ -110,7 +111,7 @@ def test_unknown_verb_lists_close_matches(runtime_kbs: RuntimeKBs) -> None:
 
 
 def test_open_vocab_fallback_is_flagged(runtime_kbs: RuntimeKBs) -> None:
-    g = Grounder(load_bundle(runtime_kbs.kb), open_vocab=True)
+    g = Grounder(load_bundle(runtime_kbs.kb), GroundingSettings(open_vocab=True))
     rois = [ROI((0, 0, 1, 1), [1.0], image_embedding=obj_emb(runtime_kbs, o), label=o) for o in ("banana", "teapot")]
     res = g.ground("drink from", rois)
     assert res.open_vocab_used and res.nearest_verbs
@@ -122,12 +123,12 @@ def test_open_vocab_fallback_is_flagged(runtime_kbs: RuntimeKBs) -> None:
 
 def test_vocabulary_subset_and_unknown_objects(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, vocabulary=["cup", "Bananas", "kettle"])
+    g = Grounder(kb, GroundingSettings(vocabulary=["cup", "Bananas", "kettle"]))
     assert g.vocabulary == ["cup", "banana", "kettle"] and g.objects_without_knowledge == ["kettle"]
     res = g.ground("eat", [ROI((0, 0, 1, 1), [1.0], image_embedding=obj_emb(runtime_kbs, "banana"))])
     assert {h.name for h in res.ranked[0].hypotheses} <= {"cup", "banana", "kettle"}
     with pytest.raises(ValueError, match="more than once"):
-        Grounder(kb, vocabulary=["cup", "cups"])
+        Grounder(kb, GroundingSettings(vocabulary=["cup", "cups"]))
 
 
 def test_embedding_dimension_mismatch_is_an_error(runtime_kbs: RuntimeKBs) -> None:
@@ -175,6 +176,6 @@ def test_full_grounding_run_opens_no_socket(runtime_kbs: RuntimeKBs, monkeypatch
     img = load_image(str(shared_image("hatchet")))
     crops = [crop_box(img, (0, 0, img.shape[1] // 2, img.shape[0])), crop_box(img, (0, 0, img.shape[1], img.shape[0]))]
     emb = enc.embed_images(crops)
-    g = Grounder(kb, open_vocab=True, text_encoder=MiniLMTextEncoder())
+    g = Grounder(kb, GroundingSettings(open_vocab=True), text_encoder=MiniLMTextEncoder())
     res = g.ground("chop", [ROI((0, 0, 1, 1), [0.9], image_embedding=e) for e in emb])
     assert res.open_vocab_used and len(res.ranked) == 2

@@ -16,7 +16,7 @@ import pytest
 from conftest import FIXTURES, FixtureKB
 from pydantic import ValidationError
 
-from craft_e.runtime.bundle import BundleError, load_bundle, read_manifest
+from craft_e.runtime.kb.bundle import BundleError, load_bundle, read_manifest
 from craft_e.schemas.generate import SCHEMA_DIR, generate_all, render
 from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
 from craft_e.schemas.v1.bundle import Manifest

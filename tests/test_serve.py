@@ -27,9 +27,10 @@ from fastapi.testclient import TestClient
 from runtime_fixtures import RuntimeKBs, conse_fixture, runtime_kbs_fixture, shared_image  # noqa: F401
 from typer.testing import CliRunner
 
-from craft_e.runtime.bundle import BundleError, load_bundle
-from craft_e.runtime.grounding import ROI, Grounder
-from craft_e.runtime.serve import GroundingService, ServeError, build_service, create_app
+from craft_e.runtime.grounding.grounder import ROI, Grounder
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.kb.bundle import BundleError, load_bundle
+from craft_e.runtime.serve.app import GroundingService, ServeError, build_service, create_app
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +116,7 @@ def test_options_weights_form_and_top_k(client: TestClient, service: GroundingSe
 
     norm = client.post("/ground", json={"verb": "cut", "rois": items,
                                         "options": {"energy_form": "normalized-product"}}).json()
-    want = Grounder(load_bundle(runtime_kbs.kb), energy_form="normalized-product").ground("cut", as_rois(items))
+    want = Grounder(load_bundle(runtime_kbs.kb), GroundingSettings(energy_form="normalized-product")).ground("cut", as_rois(items))
     assert norm["settings"]["energy_form"] == "normalized-product"
     assert [x["e_aff"] for x in norm["ranked"]] == pytest.approx([r.e_aff for r in want.ranked], abs=1e-6)
 
@@ -230,7 +231,7 @@ def test_startup_refuses_a_tampered_bundle_or_another_space(runtime_kbs: Runtime
 
 
 def test_open_vocab_server_grounds_unknown_verbs(runtime_kbs: RuntimeKBs) -> None:
-    svc = build_service(runtime_kbs.kb, open_vocab=True)
+    svc = build_service(runtime_kbs.kb, settings=GroundingSettings(open_vocab=True))
     with TestClient(create_app(svc)) as c:
         r = c.post("/ground", json={"verb": "chop", "rois": scene(svc)})
         assert r.status_code == 200, r.text
@@ -305,13 +306,8 @@ def test_ground_image_without_encoder_is_503(client: TestClient) -> None:
 
 
 def test_cli_refuses_a_missing_bundle_with_exit_2(tmp_path: Path) -> None:
-    import typer
+    from craft_e.runtime.cli.main import app
 
-    from craft_e.runtime.cli_serve import register
-
-    app = typer.Typer()
-    register(app)
-    app.command("noop")(lambda: None)  # a second command keeps "serve" a named subcommand
     r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path / "nope"), "--image-encoder", "none"])
     assert r.exit_code == 2 and "not a bundle folder" in r.output
     r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path), "--image-encoder", "clip"])
@@ -328,7 +324,7 @@ def _free_port() -> int:
 def test_craft_serve_answers_over_http(runtime_kbs: RuntimeKBs, service: GroundingService) -> None:
     """The real command: uvicorn on 127.0.0.1, healthz, one grounding, clean SIGTERM shutdown."""
     port = _free_port()
-    code = "from craft_e.runtime.cli import app; app(prog_name='craft')"
+    code = "from craft_e.runtime.cli.main import app; app(prog_name='craft')"
     proc = subprocess.Popen([sys.executable, "-c", code, "serve", "--kb", str(runtime_kbs.kb), "--port", str(port),
                              "--image-encoder", "none", "--log-level", "warning"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)

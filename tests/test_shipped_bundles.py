@@ -17,7 +17,7 @@ import pytest
 
 from craft_e.compiler.build import BuildConfig, KnowledgeMode, build
 from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
-from craft_e.runtime.energies import EnergyForm
+from craft_e.runtime.grounding.energies import EnergyForm
 from craft_e.schemas.v1.bundle import BUNDLE_FILES, MANIFEST_FILE
 
 #: Bundles built over the benchmark union only (the others add the household vocabulary).

@@ -13,6 +13,7 @@ import pytest
 
 from craft_e.paths import KB_DIR
 from craft_e.runtime.grasp.geometry import TopDownGrasp
+from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.perception.roi import roi_from_mask
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import execute_pick
@@ -44,13 +45,13 @@ def encoder() -> Any:
 
 @pytest.fixture(scope="module")
 def grounders() -> dict[str, Any]:
-    from craft_e.runtime.bundle import load_bundle
-    from craft_e.runtime.grounding import Grounder
+    from craft_e.runtime.grounding.grounder import Grounder
+    from craft_e.runtime.kb.bundle import load_bundle
 
     bundle = load_bundle(KB_DIR / "craft-e-default")
     vocabulary = list(sim_vocabulary())
-    return {"CRAFT-E": Grounder(bundle, vocabulary=vocabulary),
-            "alignment-only": Grounder(bundle, beta=0.0, vocabulary=vocabulary)}
+    return {"CRAFT-E": Grounder(bundle, GroundingSettings(vocabulary=vocabulary)),
+            "alignment-only": Grounder(bundle, GroundingSettings(beta=0.0, vocabulary=vocabulary))}
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +61,7 @@ def env() -> Iterator[SimEnv]:
 
 
 def test_vocabulary_is_the_plain_names_every_bundle_knows() -> None:
-    from craft_e.runtime.bundle import load_bundle
+    from craft_e.runtime.kb.bundle import load_bundle
 
     names = sim_vocabulary()
     assert len(names) == 62 and "mustard bottle" in names and "mustard_bottle" not in names
@@ -176,7 +177,7 @@ def test_oracle_rois_come_in_raster_order_not_target_first() -> None:
 def test_sim_demo_writes_figure_gif_and_explanation(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from craft_e.runtime.cli import app
+    from craft_e.runtime.cli.main import app
 
     result = CliRunner().invoke(app, ["sim", "demo", "--verb", "pour", "--target", "mustard_bottle",
                                       "--grasp", "oracle", "--rois", "oracle", "--gif-every", "60",

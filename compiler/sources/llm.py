@@ -9,7 +9,6 @@ Nothing invalid is ever written to the cache.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -17,7 +16,7 @@ from typing import Any, Protocol
 
 from pydantic import ValidationError
 
-from craft_e.compiler.cache import CacheError, RecordCache
+from craft_e.compiler.cache import RecordCache, check_payload, extract_json
 from craft_e.compiler.prompts import PromptTemplate
 from craft_e.schemas.v1.records import Record, RecordRequest
 
@@ -64,41 +63,6 @@ class PromptCall:
     template: PromptTemplate
     subject: str
     variables: dict[str, Any]
-
-
-def extract_json(text: str) -> Any:
-    """Parse the model's answer as JSON, tolerating a fenced code block around it."""
-    stripped = text.strip()
-    if stripped.startswith("```"):
-        stripped = stripped.split("\n", 1)[1] if "\n" in stripped else ""
-        stripped = stripped.rsplit("```", 1)[0]
-    return json.loads(stripped)
-
-
-def check_payload(record: Record, template: PromptTemplate) -> Record:
-    """A stored record is used only if its payload is what its raw response says.
-
-    The payload is what builds read; the raw response is what the model (or curator) wrote.
-    A payload edited by hand afterwards no longer equals the validated parse of the raw
-    response, and is refused (``CacheError``) instead of silently entering a bundle.
-    """
-    where = f"record {record.key} ({record.request.prompt}, subject={record.request.subject!r})"
-    try:
-        parsed = extract_json(record.raw_response)
-    except ValueError:
-        raise CacheError(f"{where}: raw_response is not JSON; the record was edited") from None
-    if parsed == record.payload:
-        return record
-    try:
-        validated = template.payload_model.model_validate(parsed).model_dump(mode="json")
-    except ValidationError:
-        validated = None
-    if validated != record.payload:
-        raise CacheError(
-            f"{where}: payload differs from the validated parse of raw_response (the answer "
-            "was edited after recording); restore the record file or record the prompt again"
-        )
-    return record
 
 
 @dataclass

@@ -21,9 +21,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from craft_e.runtime.encoders.base import ImageEncoder, TextEncoder, as_image_encoder
 from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256, EncoderError
 
-__all__ = ["REGISTRY", "EncoderEntry", "EncoderError", "available", "load"]
+__all__ = ["REGISTRY", "EncoderEntry", "EncoderError", "ImageEncoder", "TextEncoder", "available",
+           "load", "load_image"]
 
 
 @dataclass(frozen=True)
@@ -106,9 +108,20 @@ def available(kind: str | None = None) -> list[str]:
     return [n for n, e in REGISTRY.items() if kind is None or e.kind == kind]
 
 
-def load(name: str, **kwargs: Any) -> Any:
-    """Build the encoder ``name``; CLIP entries need ``weights=`` and ``sha256=`` (text: ``bpe_path=``)."""
+def load(name: str, **kwargs: Any) -> object:
+    """Build the encoder ``name``; CLIP entries need ``weights=`` and ``sha256=`` (text: ``bpe_path=``).
+
+    Typed callers use :func:`load_image` (or ``text.load_text_encoder``), which say what they return."""
     entry = REGISTRY.get(name)
     if entry is None:
         raise EncoderError(f"unknown encoder {name!r}; registered: {', '.join(REGISTRY)}")
-    return entry.loader(**kwargs)
+    result: object = entry.loader(**kwargs)
+    return result
+
+
+def load_image(name: str, **kwargs: Any) -> ImageEncoder:
+    """The image encoder ``name`` (kind ``image``), typed; any other name is an ``EncoderError``."""
+    entry = REGISTRY.get(name)
+    if entry is None or entry.kind != "image":
+        raise EncoderError(f"--image-encoder {name!r}: choose one of {', '.join(available('image'))}")
+    return as_image_encoder(load(name, **kwargs), name)

@@ -44,8 +44,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.paths import KB_DIR, VOCAB_DIR, shared_dir
-from craft_e.runtime.energies import EnergyForm, object_hypotheses
+from craft_e.paths import VOCAB_DIR, shared_dir
 from craft_e.runtime.evaluation.common import (
     ImageEmbeddingCache,
     MethodResult,
@@ -56,7 +55,11 @@ from craft_e.runtime.evaluation.common import (
     reciprocal_rank,
     topk_accuracy,
 )
-from craft_e.runtime.grounding import DEFAULT_TEMPERATURE, AffMode, normalize_verb_name
+from craft_e.runtime.grounding.energies import object_hypotheses
+from craft_e.runtime.grounding.grounder import normalize_verb_name
+
+from ..grounding.settings import GroundingSettings
+from .methods import MethodSpec, default_methods, load_methods, method_settings
 
 IntArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
@@ -226,29 +229,6 @@ def make_episodes(
     return sets, skipped
 
 
-@dataclass(frozen=True)
-class MethodSpec:
-    """A row of the table: a bundle and the energy weights it is scored with."""
-
-    name: str
-    description: str
-    bundle: Path
-    beta: float = 1.0
-    gamma: float = 1.0
-
-
-def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR) -> list[MethodSpec]:
-    """CRAFT-E, CRAFT (ConceptNet KB), direct-LLM, and the two single-term ablations."""
-    craft_e = kb or kb_dir / "craft-e-default"
-    return [
-        MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e),
-        MethodSpec("CRAFT", "ConceptNet-derived KB + visual alignment", kb_dir / "conceptnet"),
-        MethodSpec("direct-LLM", "verb -> objects ranked directly by the LLM (+ alignment)", kb_dir / "direct-llm"),
-        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0, gamma=1.0),
-        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, beta=1.0, gamma=0.0),
-    ]
-
-
 @dataclass
 class ImageNetReport:
     results: list[MethodResult]
@@ -308,9 +288,7 @@ def evaluate_imagenet(
     vocabulary: Sequence[str] | None = None,
     encoder: Any | None = None,
     cache_dir: Path | None = None,
-    temperature: float = DEFAULT_TEMPERATURE,
-    aff_mode: AffMode = "expected",
-    energy_form: EnergyForm | None = None,
+    settings: GroundingSettings | None = None,
     threads: int | None = None,
 ) -> ImageNetReport:
     """Run every method on the same episodes; see the module docstring.
@@ -318,10 +296,12 @@ def evaluate_imagenet(
     ``pool`` restricts the classes episodes are drawn from (tests use a few); ``vocabulary`` is
     the object vocabulary of ``p(o | r)`` (default: the 216 ImageNet objects, or ``pool``).
     ``cache_dir`` ``None`` keeps image embeddings in memory only; ``threads`` caps torch threads
-    of the default (ConSE) encoder.
+    of the default (ConSE) encoder. ``settings`` (temperature, E_aff form and mode) apply to
+    every method; the protocol fixes alpha = 0 (photos have no grasps) and the vocabulary.
     """
-    from craft_e.runtime.bundle import Bundle, BundleError, load_bundle
-    from craft_e.runtime.grounding import Grounder
+    from ..grounding.grounder import Grounder
+
+    settings = settings or GroundingSettings()
 
     data = load_dataset(data_root)
     labels = load_labels(labels_path, data.classes)
@@ -336,21 +316,7 @@ def evaluate_imagenet(
             if line.strip() and not line.startswith("#")]
     sets, skipped_verbs = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
 
-    specs = list(methods) if methods is not None else default_methods(kb)
-    bundles: dict[Path, Bundle | str] = {}
-    runnable: list[tuple[MethodSpec, Bundle]] = []
-    skipped: list[SkippedMethod] = []
-    for spec in specs:
-        if spec.bundle not in bundles:
-            try:
-                bundles[spec.bundle] = load_bundle(spec.bundle, check_encoder=False)
-            except BundleError as exc:
-                bundles[spec.bundle] = f"bundle unavailable: {exc}"
-        loaded = bundles[spec.bundle]
-        if isinstance(loaded, str):
-            skipped.append(SkippedMethod(spec.name, loaded))
-        else:
-            runnable.append((spec, loaded))
+    runnable, skipped = load_methods(list(methods) if methods is not None else default_methods(kb))
 
     class_ids = sorted({data.class_index[c] for c in (pool or data.classes)})
     image_ids = sorted(i for c in class_ids for i in data.class_images[c])
@@ -368,8 +334,7 @@ def evaluate_imagenet(
                 skipped.append(SkippedMethod(spec.name, f"{spec.bundle}/manifest.json: text encoder {space}, "
                                              f"image encoder {enc.id} embeds into {enc.text_encoder_id}"))
                 continue
-            grounder = Grounder(bundle, alpha=0.0, beta=spec.beta, gamma=spec.gamma, temperature=temperature,
-                                aff_mode=aff_mode, energy_form=energy_form, vocabulary=vocabulary, open_vocab=True)
+            grounder = Grounder(bundle, method_settings(spec, settings, vocabulary, alpha=0.0))
             results.append(_score_method(spec, grounder, sets, emb, image_ids))
     if sets:
         results = reference_rows(sets) + results
@@ -377,7 +342,8 @@ def evaluate_imagenet(
         "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "episodes": episodes,
         "seed": seed, "verbs": len(labels), "candidates": CANDIDATES, "classes": len(class_ids),
         "images": len(image_ids), "vocabulary_size": len(vocabulary), "image_encoder": encoder_id,
-        "temperature": temperature, "aff_mode": aff_mode, "energy_form": energy_form or "bundle",
+        "temperature": settings.temperature, "aff_mode": settings.aff_mode,
+        "energy_form": settings.energy_form or "bundle",
         "alpha": 0.0, "data": str(data.root), "multi_affording": list(MULTI_AFFORDING),
         "photos_per_class": "one (two for crane and cardigan)",
     }

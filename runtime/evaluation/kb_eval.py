@@ -42,7 +42,6 @@ import numpy as np
 import numpy.typing as npt
 
 from craft_e.paths import KB_DIR, VOCAB_DIR, shared_dir
-from craft_e.runtime.energies import ENERGY_FORMS, EnergyForm
 from craft_e.runtime.evaluation.common import (
     MethodResult,
     SkippedMethod,
@@ -50,7 +49,8 @@ from craft_e.runtime.evaluation.common import (
     markdown_table,
 )
 from craft_e.runtime.evaluation.zhu import average_precision, read_zhu_matrix
-from craft_e.runtime.grounding import normalize_verb_name
+from craft_e.runtime.grounding.energies import ENERGY_FORMS, EnergyForm
+from craft_e.runtime.grounding.grounder import normalize_verb_name
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -333,7 +333,7 @@ class KBEvalReport:
 def _bundle_rows(bundle: Any, forms: Sequence[EnergyForm], label_sets: Sequence[LabelSet],
                  eps: dict[tuple[str, str], npt.NDArray[np.intp] | None]) -> list[Scored]:
     """One row per form; what the bundle lacks is noted once, on its first row."""
-    from craft_e.runtime.grounding import affordance_energy_in_form
+    from craft_e.runtime.grounding.grounder import affordance_energy_in_form
 
     m = bundle.manifest
     rows: list[Scored] = []
@@ -357,11 +357,8 @@ def _bundle_rows(bundle: Any, forms: Sequence[EnergyForm], label_sets: Sequence[
 
 
 def _one_property_per_verb(bundle: Any) -> bool:
-    counts: dict[str, int] = {}
-    for edge in bundle.graph.get("edges", []):
-        if str(edge["source"]).startswith("verb:"):
-            counts[edge["source"]] = counts.get(edge["source"], 0) + 1
-    return bool(counts) and max(counts.values()) == 1
+    counts = [len(edges) for edges in bundle.graph.verb_properties.values()]
+    return bool(counts) and max(counts) == 1
 
 
 def _reference_rows(label_sets: Sequence[LabelSet], eps: dict[tuple[str, str], npt.NDArray[np.intp] | None]) -> list[Scored]:
@@ -428,7 +425,7 @@ def evaluate_kbs(
     objects: Sequence[str] | None = None,
 ) -> KBEvalReport:
     """Every bundle x form on every label set, chance and oracle rows, leave-verbs-out."""
-    from craft_e.runtime.bundle import BundleError, load_bundle
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     label_sets = [resolve_labels(s, objects) for s in label_specs]
     names = [ls.name for ls in label_sets]

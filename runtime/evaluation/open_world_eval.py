@@ -20,7 +20,7 @@ label set's verbs with the inferred energies is below the midpoint of chance (it
 and its in-KB per-object AP; for a verb, its mapped AP is below the midpoint of chance and its
 in-KB AP. Thresholds and the verbs' share of a request are chosen here, on these dev sets, as
 the largest threshold within 0.1 AP points of the best mean AP over the label sets (abstain
-wherever it costs no dev AP); the chosen values are the constants in ``runtime/open_world.py``.
+wherever it costs no dev AP); the chosen values are the constants in ``runtime/grounding/open_world.py``.
 """
 
 from __future__ import annotations
@@ -33,13 +33,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.energies import (
-    EnergyForm,
-    energy_from_property_columns,
-    property_specificity,
-    required_matrix_from_graph,
-    weight_matrices_from_graph,
-)
 from craft_e.runtime.evaluation.kb_eval import (
     LabelSet,
     episodes,
@@ -47,7 +40,14 @@ from craft_e.runtime.evaluation.kb_eval import (
     score_energy,
 )
 from craft_e.runtime.evaluation.zhu import average_precision
-from craft_e.runtime.open_world import (
+from craft_e.runtime.grounding.energies import (
+    EnergyForm,
+    energy_from_property_columns,
+    property_specificity,
+    required_matrix_from_graph,
+    weight_matrices_from_graph,
+)
+from craft_e.runtime.grounding.open_world import (
     OBJECT_MIN_CONFIDENCE,
     REQUEST_MIN_CONFIDENCE,
     VERB_SHARE,
@@ -97,7 +97,7 @@ def _energy(kb: _KB, w_vp: F64, q_w: F64, q_l: F64, spec: F64, required: npt.NDA
 
 def _in_kb(kb: _KB, ls: LabelSet) -> F64:
     """``[V_ls, O_ls]`` E_aff of the label set's verbs x objects with everything in the KB."""
-    from craft_e.runtime.grounding import affordance_energy_in_form
+    from craft_e.runtime.grounding.grounder import affordance_energy_in_form
 
     b = kb.bundle
     table = affordance_energy_in_form(b, kb.form)
@@ -335,7 +335,7 @@ class OpenWorldReport:
 
 def evaluate_open_world(bundle_path: Path, label_specs: Sequence[str], *, form: EnergyForm | None = None,
                         episodes_per_verb: int = 100, seed: int = 0) -> OpenWorldReport:
-    from craft_e.runtime.bundle import load_bundle
+    from craft_e.runtime.kb.bundle import load_bundle
 
     bundle = load_bundle(bundle_path, check_encoder=False)
     kb = _kb(bundle, form or bundle.manifest.energy.form)

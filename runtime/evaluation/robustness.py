@@ -44,19 +44,18 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.energies import EnergyForm
 from craft_e.runtime.evaluation.common import SkippedMethod
 from craft_e.runtime.evaluation.imagenet import (
     ImageNetReport,
     LabelsError,
-    MethodSpec,
     calibrate_temperature,
-    default_methods,
     embed_dataset_images,
     evaluate_imagenet,
     load_dataset,
 )
-from craft_e.runtime.grounding import DEFAULT_TEMPERATURE, AffMode
+
+from ..grounding.settings import GroundingSettings
+from .methods import MethodSpec, default_methods
 
 UInt8Image = npt.NDArray[np.uint8]
 FloatArray = npt.NDArray[np.float32]
@@ -385,7 +384,7 @@ def _cell(row: Mapping[str, float], spread: Mapping[str, float], show_spread: bo
 def _recognition(data: Any, class_ids: list[int], encoder: Any, cache_dir: Path | None,
                  bundle_path: Path, temperature: float) -> float | None:
     """Fraction of photos whose embedding is nearest to their own class name (pool classes)."""
-    from craft_e.runtime.bundle import BundleError, load_bundle
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     try:
         bundle = load_bundle(bundle_path, check_encoder=False)
@@ -415,9 +414,7 @@ def evaluate_robustness(
     vocabulary: Sequence[str] | None = None,
     encoder: Any | None = None,
     cache_dir: Path | None = None,
-    temperature: float = DEFAULT_TEMPERATURE,
-    aff_mode: AffMode = "expected",
-    energy_form: EnergyForm | None = None,
+    settings: GroundingSettings | None = None,
     threads: int | None = None,
 ) -> RobustnessReport:
     """Run ``evaluate_imagenet`` once per (kind, level, noise seed) with a ``PerturbedImageEncoder``.
@@ -438,6 +435,7 @@ def evaluate_robustness(
     if not seeds:
         raise ValueError("need at least one noise seed")
     specs = list(methods) if methods is not None else default_methods(kb)
+    temperature = (settings or GroundingSettings()).temperature
     if encoder is None:
         from craft_e.runtime.encoders.conse import ConSEImageEncoder
 
@@ -454,7 +452,7 @@ def evaluate_robustness(
         wrapped = PerturbedImageEncoder(encoder, kind, level, noise_seed)
         report = evaluate_imagenet(labels_path, methods=specs, episodes=episodes, seed=seed, data_root=data_root,
                                    pool=pool, vocabulary=vocabulary, encoder=wrapped, cache_dir=cache_dir,
-                                   temperature=temperature, aff_mode=aff_mode, energy_form=energy_form)
+                                   settings=settings)
         rec = _recognition(data, class_ids, wrapped, cache_dir, specs[0].bundle, temperature) if specs else None
         return {r.name: r.metrics for r in report.results}, rec, report
 

@@ -34,25 +34,24 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from craft_e.paths import KB_DIR
-from craft_e.runtime.energies import EnergyForm
 from craft_e.runtime.evaluation.common import (
     MethodResult,
     SkippedMethod,
     file_sha256,
     markdown_table,
 )
-from craft_e.runtime.evaluation.imagenet import LabelsError, MethodSpec, default_methods
-from craft_e.runtime.grounding import AffMode, normalize_verb_name
+from craft_e.runtime.evaluation.imagenet import LabelsError
+from craft_e.runtime.grounding.grounder import normalize_verb_name
 from craft_e.runtime.sim.assets import object_asset, object_catalog
 from craft_e.runtime.sim.env import EnvConfig
 from craft_e.runtime.sim.placement import Footprint, PlacementConfig, PlacementError, sample_layout
 from craft_e.runtime.sim.scene import SceneSpec
 
+from ..grounding.settings import GroundingSettings
+from .methods import MethodSpec, build_grounders, load_methods, select_methods
+
 if TYPE_CHECKING:
-    from craft_e.runtime.bundle import Bundle
     from craft_e.runtime.encoders.image import ImageEncoder
-    from craft_e.runtime.grounding import Grounder
     from craft_e.runtime.sim.pipeline import EpisodeResult, PipelineConfig
 
 DISTRACTORS = 4
@@ -62,22 +61,18 @@ MAX_DRAWS = 50  # distractor sets tried per episode before giving up (loudly)
 #: here only makes a crowded set cost 0.3 s instead of 1.5 s before it is redrawn.
 CHECK_RESTARTS = 10
 MIN_GAP = 0.01  # m between any two settled objects (segmentation needs a visible gap)
-SIM_METHODS = ("CRAFT-E", "CRAFT", "direct-LLM", "alignment-only")
 COLUMNS = (("three_d", "3D"), ("detect", "Detect"), ("grasp_rate", "Grasp Rate"))
 
 __all__ = [
     "COLUMNS",
-    "SIM_METHODS",
     "EpisodeSpec",
     "LabelPair",
     "LabelsError",
     "SimLabels",
     "SimReport",
     "evaluate_sim",
-    "load_methods",
     "load_sim_labels",
     "make_episode_specs",
-    "select_methods",
 ]
 
 
@@ -281,68 +276,7 @@ def make_episode_specs(
 
 
 # ---------------------------------------------------------------------------------------------
-# methods
-
-
-def select_methods(
-    names: Sequence[str] | None = None, kb: Path | None = None, kb_dir: Path = KB_DIR
-) -> list[MethodSpec]:
-    """The named methods of ``imagenet.default_methods`` (default: the paper's four rows)."""
-    specs = {m.name: m for m in default_methods(kb, kb_dir)}
-    wanted = list(names) if names else list(SIM_METHODS)
-    unknown = [n for n in wanted if n not in specs]
-    if unknown:
-        raise ValueError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(specs)}")
-    return [specs[n] for n in dict.fromkeys(wanted)]
-
-
-def load_methods(
-    specs: Sequence[MethodSpec], text_space: str
-) -> tuple[list[tuple[MethodSpec, Bundle]], list[SkippedMethod]]:
-    """Load each method's bundle once; a method whose bundle is missing, unverifiable or in
-    another embedding space is skipped with the reason (never silently dropped)."""
-    from craft_e.runtime.bundle import BundleError, load_bundle
-
-    loaded: dict[Path, Bundle | str] = {}
-    runnable: list[tuple[MethodSpec, Bundle]] = []
-    skipped: list[SkippedMethod] = []
-    for spec in specs:
-        if spec.bundle not in loaded:
-            try:
-                loaded[spec.bundle] = load_bundle(spec.bundle, check_encoder=False)
-            except BundleError as exc:
-                loaded[spec.bundle] = f"bundle unavailable: {exc}"
-        bundle = loaded[spec.bundle]
-        if isinstance(bundle, str):
-            skipped.append(SkippedMethod(spec.name, bundle))
-        elif bundle.manifest.text_encoder.id != text_space:
-            skipped.append(SkippedMethod(spec.name, f"{spec.bundle}: text encoder "
-                                         f"{bundle.manifest.text_encoder.id}, the image encoder embeds "
-                                         f"into {text_space}"))
-        else:
-            runnable.append((spec, bundle))
-    return runnable, skipped
-
-
-def build_grounders(
-    runnable: Sequence[tuple[MethodSpec, Bundle]],
-    *,
-    alpha: float = 1.0,
-    energy_form: EnergyForm | None = None,
-    aff_mode: AffMode = "expected",
-) -> dict[str, Grounder]:
-    """One ``Grounder`` per method over the sim vocabulary (unknown verbs: open vocabulary).
-
-    ``energy_form`` None keeps each bundle's own E_aff form.
-    """
-    from craft_e.runtime.grounding import Grounder
-    from craft_e.runtime.sim.pipeline import sim_vocabulary
-
-    vocabulary = list(sim_vocabulary())
-    return {spec.name: Grounder(bundle, alpha=alpha, beta=spec.beta, gamma=spec.gamma,
-                                vocabulary=vocabulary, open_vocab=True, energy_form=energy_form,
-                                aff_mode=aff_mode)
-            for spec, bundle in runnable}
+# encoder
 
 
 def default_encoder(threads: int = 1) -> ImageEncoder:
@@ -522,8 +456,7 @@ def evaluate_sim(
     max_pairs: int | None = None,
     encoder: ImageEncoder | None = None,
     env_config: EnvConfig | None = None,
-    energy_form: EnergyForm | None = None,
-    aff_mode: AffMode = "expected",
+    settings: GroundingSettings | None = None,
     progress: ProgressFn | None = None,
 ) -> SimReport:
     """Run every episode once and every method on it; see the module docstring.
@@ -544,7 +477,8 @@ def evaluate_sim(
     enc = encoder if encoder is not None else default_encoder(cfg.torch_threads)
     method_specs = list(methods) if methods is not None else select_methods()
     runnable, skipped = load_methods(method_specs, enc.text_encoder_id)
-    grounders = build_grounders(runnable, energy_form=energy_form, aff_mode=aff_mode)
+    settings = settings or GroundingSettings()
+    grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:
         for i, spec in enumerate(specs):
@@ -558,7 +492,7 @@ def evaluate_sim(
         grounder = grounders[spec_m.name]
         row = summarize(spec_m.name, spec_m.description, records,
                         {"bundle": str(spec_m.bundle), "kb": grounder.kb, "beta": spec_m.beta,
-                         "gamma": spec_m.gamma, "alpha": 1.0, "energy_form": grounder.energy_form,
+                         "gamma": spec_m.gamma, "alpha": grounder.alpha, "energy_form": grounder.energy_form,
                          "aff_mode": grounder.aff_mode})
         open_vocab = sorted(v for v in labels.verbs if not grounder.knows_verb(v))
         if open_vocab:
@@ -570,6 +504,6 @@ def evaluate_sim(
         "layouts": layouts, "max_pairs": max_pairs, "pairs": len({(s.verb, s.object) for s in specs}),
         "episodes": len(specs), "verbs": len({s.verb for s in specs}), "distractors": DISTRACTORS,
         "pipeline": cfg.to_dict(), "image_encoder": enc.id, "vocabulary_size": len(sim_vocabulary()),
-        "energy_form": energy_form or "bundle", "aff_mode": aff_mode,
+        "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
     }
     return SimReport(results, skipped, records, config_out)

@@ -40,27 +40,25 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.energies import EnergyForm
 from craft_e.runtime.evaluation.common import MethodResult, SkippedMethod, file_sha256
-from craft_e.runtime.evaluation.imagenet import MethodSpec
 from craft_e.runtime.evaluation.sim_eval import (
     EpisodeSpec,
-    build_grounders,
     default_encoder,
-    load_methods,
     load_sim_labels,
     make_episode_specs,
-    select_methods,
 )
 from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, wrap_half_pi
-from craft_e.runtime.grounding import AffMode
 from craft_e.runtime.sim.env import EnvConfig
 from craft_e.runtime.sim.oracle import OracleConfig, top_surface_points
 from craft_e.runtime.sim.scene import Scene
 
+from ..grounding.settings import GroundingSettings
+from ..perception.roi import ROI
+from .methods import MethodSpec, build_grounders, load_methods, select_methods
+
 if TYPE_CHECKING:
     from craft_e.runtime.encoders.image import ImageEncoder
-    from craft_e.runtime.grounding import ROI, Grounding
+    from craft_e.runtime.grounding.grounder import Grounding
     from craft_e.runtime.perception.observation import Observation
 
 BoolMask = npt.NDArray[np.bool_]
@@ -431,8 +429,7 @@ def evaluate_static(
     env_config: EnvConfig | None = None,
     gt_config: GTGraspConfig | None = None,
     threads: int = 1,
-    energy_form: EnergyForm | None = None,
-    aff_mode: AffMode = "expected",
+    settings: GroundingSettings | None = None,
     progress: ProgressFn | None = None,
 ) -> StaticReport:
     """Render every scene once, then score every method in every setting and noise level."""
@@ -448,8 +445,11 @@ def evaluate_static(
     enc = encoder if encoder is not None else default_encoder(threads)
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
                                      enc.text_encoder_id)
-    grounders = build_grounders(runnable, energy_form=energy_form, aff_mode=aff_mode)
-    settings = setting_ids(backends)
+    settings = settings or GroundingSettings()
+    from craft_e.runtime.sim.pipeline import sim_vocabulary
+
+    grounders = build_grounders(runnable, settings, sim_vocabulary())
+    setting_names = setting_ids(backends)
     episodes: list[dict[str, Any]] = []
     for i, spec in enumerate(specs if grounders else []):
         scene = render_scene(spec, backends, enc, env_cfg, gt_config, threads)
@@ -460,7 +460,7 @@ def evaluate_static(
                                   "target_gt_grasps": len(scene.target_rects), "levels": {}}
         for li, level in enumerate(levels):
             per_setting: dict[str, Any] = {}
-            for setting in settings:
+            for setting in setting_names:
                 rng = (rb.noise_rng(seed, "static", float(li), f"{spec.id}|{setting}|{level.label}".encode())
                        if rb is not None and not level.clean else np.random.default_rng(0))
                 rois = _perturbed(scene.settings[setting], level, rng, scene.rgb, enc)
@@ -477,7 +477,7 @@ def evaluate_static(
     rows: dict[str, dict[str, list[MethodResult]]] = {}
     for level in levels:
         rows[level.label] = {}
-        for setting in settings:
+        for setting in setting_names:
             rows[level.label][setting] = []
             for spec_m, _ in runnable:
                 cells = [e["levels"][level.label][setting] for e in episodes]
@@ -493,13 +493,11 @@ def evaluate_static(
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
               "noise": [lvl.label for lvl in levels], "image_encoder": enc.id, "detect_iou": DETECT_IOU,
-              "energy_form": energy_form or "bundle", "aff_mode": aff_mode,
+              "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
               "gt_grasps": "oracle section rule, 1 cm along the long axis; every 15° for round footprints"}
     return StaticReport(rows, skipped, episodes, config)
 
 
 def _grounding_rois(rois: list[StaticROI]) -> list[ROI]:
-    from craft_e.runtime import grounding
-
-    return [grounding.ROI(box_xywh=r.box, grasp_scores=[g.quality for g in r.grasps], grasps=list(r.grasps),
+    return [ROI(box_xywh=r.box, grasp_scores=[g.quality for g in r.grasps], grasps=list(r.grasps),
                 image_embedding=r.embedding, mask=r.mask, label=f"roi{i}") for i, r in enumerate(rois)]

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.bundle import Bundle
-from craft_e.runtime.energies import EnergyForm
-from craft_e.runtime.grounding import affordance_energy_in_form
+from craft_e.runtime.grounding.energies import EnergyForm
+from craft_e.runtime.grounding.grounder import affordance_energy_in_form
+from craft_e.runtime.kb.bundle import Bundle
 from craft_e.schemas.names import normalize_name
 
 #: Column name in the CSV -> the verb used in our vocabularies.

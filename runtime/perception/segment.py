@@ -18,7 +18,7 @@ from scipy import ndimage
 
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.perception.plane import Plane, PlaneFitConfig, fit_plane
-from craft_e.runtime.perception.roi import ROI, BoolMask, roi_from_mask
+from craft_e.runtime.perception.roi import BoolMask, Region, roi_from_mask
 
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 
@@ -42,7 +42,7 @@ class SegmentConfig:
 class Segmentation:
     """The ROIs plus the intermediate maps, for debugging and for the grasp modules."""
 
-    rois: list[ROI]
+    rois: list[Region]
     plane: Plane  # camera frame, oriented so heights above the table are positive
     height: npt.NDArray[np.float64]  # [H, W] metres above the plane (NaN = no depth)
     foreground: BoolMask  # [H, W] before component filtering
@@ -91,7 +91,7 @@ def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentati
         foreground = above | _colour_foreground(obs.rgb, on_table, near_plane, cfg)
     labels, count = ndimage.label(foreground, structure=_EIGHT_CONNECTED)
     max_area = cfg.max_area_fraction * foreground.size
-    rois: list[ROI] = []
+    rois: list[Region] = []
     for index in range(1, count + 1):
         mask = labels == index
         area = int(np.count_nonzero(mask))
@@ -101,6 +101,6 @@ def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentati
     return Segmentation(rois=rois, plane=plane, height=height, foreground=foreground)
 
 
-def segment_rois(obs: Observation, config: SegmentConfig | None = None) -> list[ROI]:
+def segment_rois(obs: Observation, config: SegmentConfig | None = None) -> list[Region]:
     """Just the ROIs (see ``segment``)."""
     return segment(obs, config).rois

@@ -15,17 +15,17 @@ import pybullet as p
 
 from craft_e.runtime.grasp.geometry import TopDownGrasp, wrap_half_pi
 from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.perception.roi import ROI, roi_from_mask
+from craft_e.runtime.perception.roi import Region, roi_from_mask
 from craft_e.runtime.sim.scene import Scene
 
 FloatArray = npt.NDArray[np.float64]
 
 
-def gt_rois(obs: Observation, scene: Scene, min_area: int = 20) -> list[ROI]:
+def gt_rois(obs: Observation, scene: Scene, min_area: int = 20) -> list[Region]:
     """One ROI per scene object visible in the segmentation buffer, labelled with its body id."""
     if obs.seg is None:
         raise ValueError("observation has no segmentation buffer; render it from the simulator")
-    rois: list[ROI] = []
+    rois: list[Region] = []
     for obj in scene.objects:
         mask = obs.seg == obj.body_id
         if int(np.count_nonzero(mask)) >= min_area:

@@ -59,12 +59,11 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime import grounding as grounding_api
 from craft_e.runtime.encoders.image import ImageEncoder
 from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
-from craft_e.runtime.grounding import Grounder, Grounding
+from craft_e.runtime.grounding.grounder import Grounder, Grounding
 from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.perception.roi import ROI, box_iou
+from craft_e.runtime.perception.roi import ROI, Region, box_iou
 from craft_e.runtime.perception.segment import SegmentConfig, segment
 from craft_e.runtime.sim.assets import object_catalog
 from craft_e.runtime.sim.env import SimEnv
@@ -195,7 +194,7 @@ class GraspCandidate:
 class PerceivedROI:
     """An ROI with its grasps, the grasp the robot would use, and its image embedding."""
 
-    roi: ROI
+    roi: Region
     candidates: tuple[GraspCandidate, ...]  # raw, best first
     usable: tuple[GraspCandidate, ...]  # what grounding sees (best first)
     embedding: npt.NDArray[np.float32]
@@ -229,7 +228,7 @@ def torch_threads(n: int) -> Iterator[None]:
         torch.set_num_threads(previous)
 
 
-def raster_order(rois: Sequence[ROI]) -> list[ROI]:
+def raster_order(rois: Sequence[Region]) -> list[Region]:
     """ROIs sorted by their first pixel in raster order, as the segmenter returns them.
 
     ``gt_rois`` lists the target first (scene order); grounding must not get that hint, not even
@@ -310,7 +309,7 @@ def _oracle_rect(
 
 
 def _raw_candidates(
-    scene: Scene, obs: Observation, roi: ROI, body: int | None, config: PipelineConfig
+    scene: Scene, obs: Observation, roi: Region, body: int | None, config: PipelineConfig
 ) -> list[GraspCandidate]:
     """Grasp candidates of one ROI, best first, with their world poses."""
     if config.grasp == "oracle":
@@ -465,13 +464,13 @@ def perceive(
     )
 
 
-def grounding_rois(perception: ScenePerception) -> list[grounding_api.ROI]:
+def grounding_rois(perception: ScenePerception) -> list[ROI]:
     """The grounder's view of the scene: boxes, usable grasps with scores, embeddings.
 
     Labels are ROI numbers, never object names: the grounder must not see the ground truth.
     """
     return [
-        grounding_api.ROI(
+        ROI(
             box_xywh=(float(r.roi.box_xywh[0]), float(r.roi.box_xywh[1]),
                       float(r.roi.box_xywh[2]), float(r.roi.box_xywh[3])),
             grasp_scores=[c.quality for c in r.usable],

@@ -77,7 +77,7 @@ class EnergyInfo(_Frozen):
 
     form: Literal[
         "sum-tanh", "normalized-product", "specificity", "required-veto", "specificity-veto"
-    ] = Field("sum-tanh", description="E_aff form (craft_e.runtime.energies.EnergyForm)")
+    ] = Field("sum-tanh", description="E_aff form (craft_e.runtime.grounding.energies.EnergyForm)")
     tau: float = Field(ge=0.0, le=1.0, description="w_po threshold for an edge to count")
 
 
@@ -139,7 +139,7 @@ class Hub(_Frozen):
 
 
 class Diagnostics(_Frozen):
-    """Does E_aff discriminate? (``craft_e.runtime.kb_diagnostics``; issue 9.)"""
+    """Does E_aff discriminate? (``craft_e.runtime.kb.diagnostics``; issue 9.)"""
 
     affordant_share: float = Field(ge=0.0, le=1.0, description="verb x object cells with E_aff < 0")
     saturated_share: float = Field(ge=0.0, le=1.0, description="cells with E_aff <= -0.99")

@@ -23,25 +23,24 @@ from __future__ import annotations
 import difflib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.bundle import Bundle, PathStep
-from craft_e.runtime.energies import (
+from craft_e.runtime.encoders.base import TextEncoder
+from craft_e.runtime.grounding.energies import (
     FORBIDDEN_ENERGY,
     EnergyForm,
     affordance_energy_matrix,
     check_energy_form,
     energy_from_property_columns,
-    forbidden_pairs,
     object_hypotheses,
     property_specificity,
     required_matrix_from_graph,
     weight_matrices_from_graph,
 )
-from craft_e.runtime.open_world import (
+from craft_e.runtime.grounding.open_world import (
     REQUEST_MIN_CONFIDENCE,
     REQUEST_PROPERTIES,
     REQUEST_TEMPERATURE,
@@ -55,16 +54,11 @@ from craft_e.runtime.open_world import (
     map_request,
     parse_request,
 )
+from craft_e.runtime.grounding.settings import AffMode, GroundingSettings
+from craft_e.runtime.kb.bundle import Bundle, PathStep
+from craft_e.runtime.perception.roi import ROI
 
 FloatArray = npt.NDArray[np.float32]
-AffMode = Literal["expected", "argmax"]
-
-#: Softmax temperature of p(o | r), fixed a priori: a round value at which a cosine gap of 0.1
-#: between two object names multiplies their odds by e. It is fitted to no image set. (The former
-#: 0.06 was calibrated on the 218 shared ImageNet photos, i.e. on the benchmark's own test images,
-#: and is retired for that reason; ``imagenet.calibrate_temperature`` may be run on other images,
-#: such as the testbed's renders, never on the benchmark's.)
-DEFAULT_TEMPERATURE = 0.1
 GRASP_SCORE_MIN = 1e-6
 
 
@@ -79,23 +73,6 @@ class UnknownVerbError(ValueError):
             f"unknown verb {verb!r}: not in KB {kb} ({hint}); use one of the KB's verbs, rebuild "
             "the KB with it, or enable the open-vocabulary fallback (open_vocab=True / --open-vocab)"
         )
-
-
-@dataclass
-class ROI:
-    """A candidate region: box, grasp candidates with scores, and its image embedding.
-
-    ``grasps`` is opaque to the grounder (e.g. ``Grasp2D`` or 6-DoF poses) and parallel to
-    ``grasp_scores``; the chosen grasp is returned by index. ``image_embedding`` is ``phi_I(r)``
-    (``[d]``, any norm) in the bundle's text space.
-    """
-
-    box_xywh: tuple[float, float, float, float]
-    grasp_scores: Sequence[float] = ()
-    grasps: list[Any] = field(default_factory=list)
-    image_embedding: FloatArray | None = None
-    mask: npt.NDArray[np.bool_] | None = None
-    label: str | None = None
 
 
 @dataclass(frozen=True)
@@ -141,12 +118,7 @@ class Grounding:
     ranked: list[RankedROI]
     excluded: list[ExcludedROI]
     kb: str
-    alpha: float
-    beta: float
-    gamma: float
-    temperature: float
-    aff_mode: AffMode
-    energy_form: EnergyForm
+    settings: GroundingSettings  # resolved: energy_form is the one used
     open_vocab_used: bool = False
     nearest_verbs: list[tuple[str, float]] = field(default_factory=list)  # (verb, weight)
     notes: list[str] = field(default_factory=list)
@@ -180,9 +152,7 @@ class Grounding:
             }
         return {
             "verb": self.verb, "kb": self.kb,
-            "settings": {"alpha": self.alpha, "beta": self.beta, "gamma": self.gamma,
-                         "temperature": self.temperature, "aff_mode": self.aff_mode,
-                         "energy_form": self.energy_form},
+            "settings": self.settings.energy_dict(),
             "open_vocab_used": self.open_vocab_used,
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
@@ -196,8 +166,9 @@ class Grounding:
 
     def render(self, max_paths: int = 5) -> str:
         """A terminal report: ranking with energies, exclusions, and the chosen ROI's paths."""
-        lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={self.alpha:g} beta={self.beta:g} "
-                 f"gamma={self.gamma:g}, T={self.temperature:g}, E_aff {self.energy_form}/{self.aff_mode})"]
+        st = self.settings
+        lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={st.alpha:g} beta={st.beta:g} "
+                 f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -298,7 +269,7 @@ def affordance_energy_in_form(bundle: Bundle, form: EnergyForm) -> FloatArray:
     w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
     required = required_matrix_from_graph(bundle.graph, m.verbs, m.properties)  # [V, P]
     energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form, required=required)
-    for v, o in forbidden_pairs(bundle.graph):
+    for v, o in bundle.graph.forbidden_pairs():
         if v in bundle.verb_index and o in bundle.object_index:
             energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
     return energy
@@ -321,32 +292,18 @@ class Grounder:
     def __init__(
         self,
         bundle: Bundle,
+        settings: GroundingSettings | None = None,
         *,
-        alpha: float = 1.0,
-        beta: float = 1.0,
-        gamma: float = 1.0,
-        temperature: float = DEFAULT_TEMPERATURE,
-        aff_mode: AffMode = "expected",
-        energy_form: EnergyForm | None = None,
-        vocabulary: Sequence[str] | None = None,
-        open_vocab: bool = False,
-        text_encoder: Any | None = None,
+        text_encoder: TextEncoder | None = None,
         top_k_hypotheses: int = 3,
         object_min_confidence: float | None = None,
         request_min_confidence: float | None = None,
     ) -> None:
-        if aff_mode not in ("expected", "argmax"):
-            raise ValueError(f"aff_mode must be 'expected' or 'argmax', got {aff_mode!r}")
-        if temperature <= 0:
-            raise ValueError(f"temperature must be > 0, got {temperature}")
         m = bundle.manifest
-        form: EnergyForm = check_energy_form(energy_form or m.energy.form)
+        self.settings = (settings or GroundingSettings()).with_form(m.energy.form)
+        form = self.settings.form
+        vocabulary = self.settings.vocabulary
         self.bundle = bundle
-        self.alpha, self.beta, self.gamma = float(alpha), float(beta), float(gamma)
-        self.temperature = float(temperature)
-        self.aff_mode: AffMode = aff_mode
-        self.energy_form: EnergyForm = form
-        self.open_vocab = open_vocab
         self.top_k_hypotheses = top_k_hypotheses
         self._text_encoder = text_encoder
         self.kb = f"{m.kb_name}@{m.kb_version}"
@@ -377,18 +334,13 @@ class Grounder:
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
 
         self._forbidden: dict[str, frozenset[str]] = {}
-        for v, o in forbidden_pairs(bundle.graph):
+        for v, o in bundle.graph.forbidden_pairs():
             self._forbidden[v] = self._forbidden.get(v, frozenset()) | {o}
-        # path index: verb -> [(prop, vp edge)], (prop, obj) -> po edge
         tau = m.energy.tau
-        self._vp: dict[str, list[tuple[str, dict[str, Any]]]] = {}
-        self._po: dict[tuple[str, str], dict[str, Any]] = {}
-        for edge in bundle.graph.get("edges", []):
-            src, dst = edge["source"], edge["target"]
-            if src.startswith("verb:") and dst.startswith("prop:"):
-                self._vp.setdefault(src[5:], []).append((dst[5:], edge))
-            elif src.startswith("prop:") and dst.startswith("obj:") and edge["weight"] >= tau and edge["weight"] > 0:
-                self._po[(src[5:], dst[4:])] = edge
+        # record ids of the linking property -> object edges (w_po >= tau), for explanations
+        self._po_records: dict[tuple[str, str], tuple[str, ...]] = {
+            (p, e.target_name): tuple(e.provenance)
+            for p, edges in bundle.graph.property_objects.items() for e in edges if e.weight >= tau and e.weight > 0}
         self._paths: dict[tuple[str, str], list[PathStep]] = {}
         self._plans: dict[str, _VerbPlan] = {}
 
@@ -398,7 +350,7 @@ class Grounder:
                     idx: npt.NDArray[np.intp], obj_emb: FloatArray, object_min_confidence: float | None,
                     request_min_confidence: float | None) -> None:
         """Property columns of the vocabulary (KB objects: their own; unknown ones: inferred from
-        similar KB objects, ``runtime/open_world.py``) and the request-mapping parameters."""
+        similar KB objects, ``runtime/grounding/open_world.py``) and the request-mapping parameters."""
         m = bundle.manifest
         tau = m.energy.tau
         self._w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
@@ -448,7 +400,7 @@ class Grounder:
     def _affordance_matrix(bundle: Bundle, form: EnergyForm) -> FloatArray:
         return affordance_energy_in_form(bundle, form)
 
-    def _encoder(self) -> Any:
+    def _encoder(self) -> TextEncoder:
         """The bundle's text encoder, loaded on first need (unknown objects, open vocabulary)."""
         if self._text_encoder is None:
             from craft_e.runtime.encoders.text import load_text_encoder
@@ -507,15 +459,15 @@ class Grounder:
                 if w_po <= 0:
                     continue
                 prop = self.properties[p]
-                edge = self._po.get((prop, obj))
-                prov = ("inferred",) if inferred or edge is None else tuple(edge["provenance"])
+                records = self._po_records.get((prop, obj))
+                prov = ("inferred",) if inferred or records is None else records
                 steps.append(PathStep(plan.request.task, prop, obj, round(float(w[p]), 4), round(w_po, 4), prov))
         elif plan.explain_verb is not None and inferred:
-            for prop, vp in self._vp.get(plan.explain_verb, []):
-                w_po = float(self._col_w[self._prop_index[prop], j])
+            for vp in self.bundle.graph.verb_properties.get(plan.explain_verb, []):
+                w_po = float(self._col_w[self._prop_index[vp.target_name], j])
                 if w_po > 0:
-                    steps.append(PathStep(plan.explain_verb, prop, obj, float(vp["weight"]), round(w_po, 4),
-                                          (*vp["provenance"], "inferred")))
+                    steps.append(PathStep(plan.explain_verb, vp.target_name, obj, vp.weight, round(w_po, 4),
+                                          (*vp.provenance, "inferred")))
         steps.sort(key=lambda s: -(s.w_vp * s.w_po))
         return steps[:limit]
 
@@ -524,13 +476,7 @@ class Grounder:
         key = (verb, obj)
         found = self._paths.get(key)
         if found is None:
-            found = []
-            for prop, vp in self._vp.get(verb, []):
-                po = self._po.get((prop, obj))
-                if po is not None:
-                    found.append(PathStep(verb, prop, obj, float(vp["weight"]), float(po["weight"]),
-                                          tuple(vp["provenance"]) + tuple(po["provenance"])))
-            self._paths[key] = found
+            found = self._paths[key] = self.bundle.paths(verb, obj)
         return found
 
     def with_weights(self, alpha: float, beta: float, gamma: float) -> Grounder:
@@ -542,8 +488,38 @@ class Grounder:
         import copy
 
         variant = copy.copy(self)
-        variant.alpha, variant.beta, variant.gamma = float(alpha), float(beta), float(gamma)
+        variant.settings = self.settings.model_copy(
+            update={"alpha": float(alpha), "beta": float(beta), "gamma": float(gamma)})
         return variant
+
+    # The settings, read where the scores are combined (``with_weights`` swaps them).
+    @property
+    def alpha(self) -> float:
+        return self.settings.alpha
+
+    @property
+    def beta(self) -> float:
+        return self.settings.beta
+
+    @property
+    def gamma(self) -> float:
+        return self.settings.gamma
+
+    @property
+    def temperature(self) -> float:
+        return self.settings.temperature
+
+    @property
+    def aff_mode(self) -> AffMode:
+        return self.settings.aff_mode
+
+    @property
+    def energy_form(self) -> EnergyForm:
+        return self.settings.form
+
+    @property
+    def open_vocab(self) -> bool:
+        return self.settings.open_vocab
 
     def knows_verb(self, verb: str) -> bool:
         """Whether ``verb`` is in the bundle (else ``ground`` needs the open-vocabulary fallback)."""
@@ -623,9 +599,8 @@ class Grounder:
                     paths=paths, forbidden=obj in plan.forbidden, inference=self.inferred.get(obj),
                 ))
         return Grounding(
-            verb=name, ranked=ranked, excluded=excluded, kb=self.kb, alpha=self.alpha, beta=self.beta,
-            gamma=self.gamma, temperature=self.temperature, aff_mode=self.aff_mode,
-            energy_form=self.energy_form, open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
+            verb=name, ranked=ranked, excluded=excluded, kb=self.kb, settings=self.settings,
+            open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
             request=plan.request, property_names=self.properties if plan.request is not None else [],
             notes=self._open_world_notes(plan, ranked),
         )

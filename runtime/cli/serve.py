@@ -1,4 +1,4 @@
-"""``craft serve``: run the grounding HTTP API (``runtime/serve.py``) with uvicorn, one process.
+"""``craft serve``: run the grounding HTTP API (``runtime/serve/app.py``) with uvicorn, one process.
 
 The bundle is loaded and verified, and the grounders built, *before* the port is bound: a
 refused bundle exits 2 with the loader's message and never answers a request. Binds 127.0.0.1
@@ -12,19 +12,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.markup import escape
 
-_err = Console(stderr=True)
-EXIT_BAD_INPUT = 2
-
-
-def _fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
+from .common import err, fail, grounding_settings
 
 
 def serve_cmd(
@@ -42,35 +34,28 @@ def serve_cmd(
     access_log: Annotated[bool, typer.Option(help="Log every request (costs throughput).")] = False,
 ) -> None:
     """Serve POST /ground, POST /ground_image, GET /healthz and GET /verbs over HTTP."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see runtime/cli.py: tiny matmuls, busy cores
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see cli/main.py: tiny matmuls, busy cores
     import uvicorn
 
-    from craft_e.runtime.bundle import BundleError
     from craft_e.runtime.encoders import EncoderError
-    from craft_e.runtime.grounding import DEFAULT_TEMPERATURE
-    from craft_e.runtime.serve import ServeError, create_app, load_image_encoder
+    from craft_e.runtime.kb.bundle import BundleError
+    from craft_e.runtime.serve.app import ServeError, create_app, load_image_encoder
 
     if image_encoder not in ("conse", "none"):
-        _fail(f"--image-encoder {image_encoder!r}: use conse or none")
-    if temperature is not None and temperature <= 0:
-        _fail(f"--temperature {temperature}: must be > 0")
+        fail(f"--image-encoder {image_encoder!r}: use conse or none")
+    settings = grounding_settings(temperature=temperature, open_vocab=open_vocab)
     if log_level not in ("critical", "error", "warning", "info", "debug"):
-        _fail(f"--log-level {log_level!r}: use critical, error, warning, info or debug")
+        fail(f"--log-level {log_level!r}: use critical, error, warning, info or debug")
     try:
         encoder = load_image_encoder("conse" if image_encoder == "conse" else "none", threads=threads)
-        app = create_app(kb, image_encoder=encoder, max_rois=max_rois, open_vocab=open_vocab,
+        app = create_app(kb, image_encoder=encoder, max_rois=max_rois, settings=settings,
                          trusted_keys=[str(k) for k in trusted_key] if trusted_key else None,
-                         max_body_bytes=max_body_bytes,
-                         temperature=DEFAULT_TEMPERATURE if temperature is None else temperature)
+                         max_body_bytes=max_body_bytes)
     except (BundleError, ServeError, EncoderError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     health = app.state.service.health()
-    _err.print(f"serving {health['kb']}@{health['version']} (content sha256 {health['content_sha256'][:16]}..., "
+    err.print(f"serving {health['kb']}@{health['version']} (content sha256 {health['content_sha256'][:16]}..., "
                f"{health['verbs']} verbs, dim {health['dim']}, image encoder {health['image_encoder'] or 'none'}) "
                f"on http://{host}:{port}", highlight=False, soft_wrap=True)
     uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=access_log, workers=1)
 
-
-def register(app: typer.Typer) -> None:
-    """Add ``craft serve`` to the top-level ``craft`` app."""
-    app.command("serve")(serve_cmd)

@@ -49,11 +49,11 @@ import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, Literal
+from typing import IO, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from craft_e.runtime.bundle import BundleError, read_manifest, verify_files
+from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
 from craft_e.schemas.v1.bundle import (
     BUILD_INFO_FILE,
     BUNDLE_FILES,
@@ -63,9 +63,6 @@ from craft_e.schemas.v1.bundle import (
     listed_files_ok,
 )
 from craft_e.schemas.v1.records import canonical_json
-
-if TYPE_CHECKING:
-    from craft_e.runtime.bundle import Bundle
 
 PACKAGE_MAGIC = b"CRAFTPK1"
 PACKAGE_FORMAT = "craft-package/1"
@@ -748,35 +745,6 @@ def unpacked(
         yield folder, verified
 
 
-def load_packed_bundle(
-    path: Path,
-    trusted_keys: Sequence[TrustedKey] | None,
-    *,
-    check_encoder: bool = True,
-    encoder_id: str | None = None,
-) -> Bundle:
-    """``load_bundle`` for a ``.craft`` file: verify, unpack privately, load, clean up.
-
-    The bundle is read fully into memory by ``load_bundle``, so the temporary folder can go;
-    ``Bundle.path`` names the package so messages and logs point at what the user passed.
-    """
-    from craft_e.runtime.bundle import load_bundle
-
-    if trusted_keys is None:
-        raise _fail(
-            path,
-            "is a packed bundle, and no trusted keys were given",
-            "pass trusted_keys=[<craft-signing.pub>] (or --trusted-key) to verify its signer",
-        )
-    with unpacked(path, trusted_keys) as (folder, _):
-        try:
-            bundle = load_bundle(folder, check_encoder=check_encoder, encoder_id=encoder_id)
-        except BundleError as exc:
-            raise BundleError(str(exc).replace(str(folder), str(path))) from None
-    bundle.path = path
-    return bundle
-
-
 def read_header(path: Path | str) -> PackageHeader:
     """The header of a package, *unverified* — for display (``craft installed``), never trust."""
     path = Path(path)
@@ -820,7 +788,6 @@ __all__ = [
     "VerifiedPackage",
     "container_bytes",
     "key_id",
-    "load_packed_bundle",
     "parse_public_key",
     "read_header",
     "statement_for",

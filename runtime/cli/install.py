@@ -10,25 +10,16 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 
-_err = Console(stderr=True)
-_out = Console()
-EXIT_CHECK_FAILED = 1
-EXIT_BAD_INPUT = 2
+from .common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, fail, out
 
 IntoOpt = Annotated[
     Path, typer.Option("--into", help="Install folder (holds versions/, current, previous).")
 ]
-
-
-def _fail(message: str, code: int) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
 
 
 def install_cmd(
@@ -49,8 +40,8 @@ def install_cmd(
     ] = False,
 ) -> None:
     """Verify a signed package and make it the current KB (the old one becomes previous)."""
-    from craft_e.runtime.install import InstallError, install
-    from craft_e.runtime.package import DestinationError, PackageError
+    from craft_e.runtime.kb.install import InstallError, install
+    from craft_e.runtime.kb.package import DestinationError, PackageError
 
     try:
         result = install(
@@ -61,14 +52,14 @@ def install_cmd(
             allow_downgrade=allow_downgrade,
         )
     except (InstallError, DestinationError) as exc:
-        _fail(str(exc), EXIT_BAD_INPUT)
+        fail(str(exc), EXIT_BAD_INPUT)
     except PackageError as exc:
         missing = not package.is_file()
-        _fail(str(exc), EXIT_BAD_INPUT if missing else EXIT_CHECK_FAILED)
+        fail(str(exc), EXIT_BAD_INPUT if missing else EXIT_CHECK_FAILED)
     except OSError as exc:
-        _fail(f"{into}: cannot write the install folder ({exc})", EXIT_BAD_INPUT)
+        fail(f"{into}: cannot write the install folder ({exc})", EXIT_BAD_INPUT)
     how = "already present, verified" if result.reused else "unpacked and verified"
-    _out.print(
+    out.print(
         f"installed {result.version} ({how}) -> {into / 'current'}\n"
         f"  previous: {result.previous or '-'}",
         highlight=False,
@@ -79,15 +70,15 @@ def install_cmd(
 
 def rollback_cmd(into: IntoOpt) -> None:
     """Switch current back to the previous version (run again to undo)."""
-    from craft_e.runtime.install import DamagedVersionError, InstallError, rollback
+    from craft_e.runtime.kb.install import DamagedVersionError, InstallError, rollback
 
     try:
         result = rollback(into)
     except DamagedVersionError as exc:
-        _fail(str(exc), EXIT_CHECK_FAILED)
+        fail(str(exc), EXIT_CHECK_FAILED)
     except InstallError as exc:
-        _fail(str(exc), EXIT_BAD_INPUT)
-    _out.print(
+        fail(str(exc), EXIT_BAD_INPUT)
+    out.print(
         f"rolled back: current -> {result.version}; previous -> {result.previous or '-'}",
         highlight=False,
         markup=False,
@@ -101,12 +92,12 @@ def installed_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """List installed versions, marking current (*) and previous (-)."""
-    from craft_e.runtime.install import InstallError, installed
+    from craft_e.runtime.kb.install import InstallError, installed
 
     try:
         versions = installed(into, verify=verify)
     except InstallError as exc:
-        _fail(str(exc), EXIT_BAD_INPUT)
+        fail(str(exc), EXIT_BAD_INPUT)
     if as_json:
         rows = [
             {
@@ -123,17 +114,11 @@ def installed_cmd(
         ]
         sys.stdout.write(json.dumps(rows, indent=1) + "\n")
     elif not versions:
-        _out.print(f"nothing installed in {into}", highlight=False, markup=False)
+        out.print(f"nothing installed in {into}", highlight=False, markup=False)
     for v in [] if as_json else versions:
         mark = "*" if v.is_current else "-" if v.is_previous else " "
         state = f"  [red]{escape(v.problem)}[/]" if v.problem else ""
-        _out.print(f"{escape(mark)} {escape(v.version)}{state}", highlight=False, soft_wrap=True)
+        out.print(f"{escape(mark)} {escape(v.version)}{state}", highlight=False, soft_wrap=True)
     if any(v.problem for v in versions):
         raise typer.Exit(EXIT_CHECK_FAILED)
 
-
-def register(app: typer.Typer) -> None:
-    """Add ``install``, ``rollback`` and ``installed`` to the ``craft`` app."""
-    app.command("install")(install_cmd)
-    app.command("rollback")(rollback_cmd)
-    app.command("installed")(installed_cmd)

@@ -126,7 +126,7 @@ def discrimination_diagnostics(
 def bundle_diagnostics(bundle: Any, energy: npt.NDArray[Any] | None = None) -> dict[str, Any]:
     """:func:`discrimination_diagnostics` of a loaded bundle (``energy``: another form's matrix,
     default the bundle's own ``affordance_energy.npy``)."""
-    from craft_e.runtime.energies import weight_matrices_from_graph
+    from craft_e.runtime.grounding.energies import weight_matrices_from_graph
 
     m = bundle.manifest
     w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)

@@ -10,8 +10,7 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 
-from craft_e.runtime.bundle import Bundle, PathStep
-from craft_e.runtime.energies import forbidden_pairs
+from craft_e.runtime.kb.bundle import Bundle, PathStep
 
 
 class UnknownNameError(ValueError):
@@ -91,20 +90,12 @@ def explain_pair(bundle: Bundle, verb: str, obj: str) -> Explanation:
     o = _resolve("object", obj, m.objects, kb)
     row = bundle.energy[bundle.verb_index[v]]  # [O]
     e = float(row[bundle.object_index[o]])
-    nodes = {str(n.get("id")): n for n in bundle.graph.get("nodes", [])}
-    roles = {
-        str(edge["target"]).removeprefix("prop:"): str(edge["role"])
-        for edge in bundle.graph.get("edges", [])
-        if edge.get("source") == f"verb:{v}" and "role" in edge
-    }
-    definitions = {
-        prop: str(nodes[f"prop:{prop}"]["definition"])
-        for prop in roles
-        if "definition" in nodes.get(f"prop:{prop}", {})
-    }
+    g = bundle.graph
+    roles: dict[str, str] = dict(g.roles(v))
+    definitions = {prop: d for prop in roles if (d := g.definition(prop)) is not None}
     return Explanation(
         verb=v, obj=o, kb=kb, e_aff=e, energy_form=m.energy.form, tau=m.energy.tau,
-        paths=bundle.paths(v, o), forbidden=(v, o) in set(forbidden_pairs(bundle.graph)),
+        paths=bundle.paths(v, o), forbidden=(v, o) in set(g.forbidden_pairs()),
         rank=int((row < e).sum()) + 1, n_objects=len(m.objects),
-        gloss=str(nodes.get(f"obj:{o}", {}).get("gloss", "")), definitions=definitions, roles=roles,
+        gloss=g.gloss(o) or "", definitions=definitions, roles=roles,
     )

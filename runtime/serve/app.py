@@ -57,15 +57,17 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from craft_e.runtime.bundle import Bundle, load_bundle
-from craft_e.runtime.energies import ENERGY_FORMS, EnergyForm
-from craft_e.runtime.grounding import (
-    DEFAULT_TEMPERATURE,
-    ROI,
+from craft_e.runtime.grounding.energies import ENERGY_FORMS, EnergyForm
+from craft_e.runtime.grounding.grounder import (
     Grounder,
     Grounding,
     UnknownVerbError,
 )
+from craft_e.runtime.kb.bundle import Bundle, load_bundle
+
+from ..encoders.base import ImageEncoder
+from ..grounding.settings import GroundingSettings
+from ..perception.roi import ROI, BoxSpec, RoiError, build_rois
 
 #: Candidate regions per request. A tabletop scene has a handful; the bound keeps one request's
 #: cost (and a hostile client's) small, and is reported in the 422 when exceeded.
@@ -222,7 +224,7 @@ class GroundingService:
     bundle: Bundle
     grounders: dict[EnergyForm, Grounder]
     default_form: EnergyForm
-    image_encoder: Any | None
+    image_encoder: ImageEncoder | None
     max_rois: int
     started: float = field(default_factory=time.time)
     max_image_boxes: int = DEFAULT_MAX_IMAGE_BOXES
@@ -247,7 +249,7 @@ class GroundingService:
             "status": "ok", "kb": m.kb_name, "version": m.kb_version,
             "content_sha256": m.content_sha256, "verbs": len(m.verbs), "objects": len(m.objects),
             "dim": self.dim, "text_encoder": m.text_encoder.id, "energy_form": self.default_form,
-            "image_encoder": getattr(self.image_encoder, "id", None), "max_rois": self.max_rois,
+            "image_encoder": self.image_encoder.id if self.image_encoder is not None else None, "max_rois": self.max_rois,
             "uptime_s": round(time.time() - self.started, 3),
         }
 
@@ -258,9 +260,8 @@ class GroundingService:
         found = self._vocab_grounders.pop(key, None)
         if found is None:
             try:
-                found = Grounder(self.bundle, energy_form=form, open_vocab=base.open_vocab,
-                                 text_encoder=base._text_encoder, temperature=base.temperature,
-                                 vocabulary=objects)
+                found = Grounder(self.bundle, base.settings.model_copy(
+                    update={"energy_form": form, "vocabulary": tuple(objects)}), text_encoder=base._text_encoder)
             except ValueError as exc:
                 raise _invalid(["objects"], str(exc), "invalid_vocabulary") from None
             if base._text_encoder is None:
@@ -321,25 +322,19 @@ class GroundingService:
                            "embed crops client-side and POST /ground)", "too_many_boxes")
 
     def rois_from_image(self, req: GroundImageRequest) -> tuple[list[ROI], dict[str, int]]:
-        """Decode the image, crop every box, embed the crops in one batch."""
-        from craft_e.runtime.encoders.image import crop_box
-
+        """Decode the image, crop every box, embed the crops in one batch (``build_rois``)."""
         self.check_image_boxes(len(req.boxes))
         if self.image_encoder is None:
             raise _error(503, "image_encoder_disabled",
                          "this server runs without an image encoder (craft serve --image-encoder "
                          "none); embed crops client-side and POST /ground")
         rgb = decode_image(req.image_b64, self.max_image_pixels)
-        crops = []
-        for i, b in enumerate(req.boxes):
-            try:
-                crops.append(crop_box(rgb, b.box_xywh))
-            except ValueError as exc:
-                raise _invalid(["boxes", i, "box_xywh"], str(exc), "box_outside_image") from None
-        with self._encoder_lock:
-            emb = self.image_encoder.embed_images(crops)  # [N, d]
-        rois = [ROI(box_xywh=b.box_xywh, grasp_scores=list(b.grasp_scores), image_embedding=emb[i],
-                    label=b.label) for i, b in enumerate(req.boxes)]
+        specs = [BoxSpec(b.box_xywh, list(b.grasp_scores), b.label) for b in req.boxes]
+        try:
+            with self._encoder_lock:
+                rois = build_rois(rgb, specs, self.image_encoder)
+        except RoiError as exc:
+            raise _invalid(["boxes", exc.index, "box_xywh"], str(exc), "box_outside_image") from None
         return rois, {"width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
 
     def ground(self, verb: str, rois: list[ROI], options: GroundOptions | None,
@@ -406,36 +401,37 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> npt.NDArray[np
 def build_service(
     kb: Path | str | Bundle,
     *,
-    image_encoder: Any | None = None,
+    image_encoder: ImageEncoder | None = None,
     max_rois: int = DEFAULT_MAX_ROIS,
-    open_vocab: bool = False,
+    settings: GroundingSettings | None = None,
     trusted_keys: Sequence[bytes | str] | None = None,
-    temperature: float = DEFAULT_TEMPERATURE,
 ) -> GroundingService:
     """Load and verify the bundle (``BundleError`` on failure), build a grounder per energy form.
 
     ``image_encoder`` must embed into the bundle's text space (else ``ServeError``): cosines
     across spaces would rank garbage without any error. Both energy forms are prepared here so
     that a request choosing the other form does not stall on recomputing the ``[V, O]`` matrix.
+    ``settings`` (temperature, open vocabulary) apply to every request; a request may choose
+    another energy form and weights.
     """
+    settings = settings or GroundingSettings()
     if max_rois < 1:
         raise ServeError(f"max_rois must be >= 1, got {max_rois}")
-    encoder_id = getattr(image_encoder, "text_encoder_id", None) if image_encoder is not None else None
+    encoder_id = image_encoder.text_encoder_id if image_encoder is not None else None
     bundle = kb if isinstance(kb, Bundle) else load_bundle(kb, encoder_id=encoder_id, trusted_keys=trusted_keys)
     space = bundle.manifest.text_encoder.id
     if image_encoder is not None and encoder_id != space:
-        raise ServeError(f"image encoder {getattr(image_encoder, 'id', '?')} embeds into {encoder_id}, "
+        raise ServeError(f"image encoder {image_encoder.id} embeds into {encoder_id}, "
                          f"the bundle's text encoder is {space}; serve a matching bundle")
     text_encoder = None
-    if open_vocab:  # load the text encoder now, not on the first unknown verb
+    if settings.open_vocab:  # load the text encoder now, not on the first unknown verb
         from craft_e.runtime.encoders.text import load_text_encoder
 
         text_encoder = load_text_encoder(space)
     default: EnergyForm = bundle.manifest.energy.form
     forms: tuple[EnergyForm, ...] = ENERGY_FORMS
     grounders = {
-        form: Grounder(bundle, energy_form=form, open_vocab=open_vocab, text_encoder=text_encoder,
-                       temperature=temperature)
+        form: Grounder(bundle, settings.model_copy(update={"energy_form": form}), text_encoder=text_encoder)
         for form in forms
     }
     return GroundingService(bundle, grounders, default, image_encoder, max_rois)
@@ -525,13 +521,12 @@ async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
 def create_app(
     kb: Path | str | Bundle | GroundingService,
     *,
-    image_encoder: Any | None = None,
+    image_encoder: ImageEncoder | None = None,
     max_rois: int = DEFAULT_MAX_ROIS,
-    open_vocab: bool = False,
+    settings: GroundingSettings | None = None,
     trusted_keys: Sequence[bytes | str] | None = None,
     max_body_bytes: int = DEFAULT_MAX_BODY_BYTES,
     max_image_body_bytes: int = DEFAULT_MAX_IMAGE_BODY_BYTES,
-    temperature: float = DEFAULT_TEMPERATURE,
     max_image_boxes: int | None = None,
     max_image_pixels: int | None = None,
     max_concurrent_images: int | None = None,
@@ -540,8 +535,8 @@ def create_app(
     arguments other than the body and image limits are ``build_service``'s (ignored for a
     service). Image limits left as None keep the service's (the module defaults)."""
     service = kb if isinstance(kb, GroundingService) else build_service(
-        kb, image_encoder=image_encoder, max_rois=max_rois, open_vocab=open_vocab,
-        trusted_keys=trusted_keys, temperature=temperature)
+        kb, image_encoder=image_encoder, max_rois=max_rois, settings=settings,
+        trusted_keys=trusted_keys)
     if max_image_boxes is not None:
         service.max_image_boxes = max_image_boxes
     if max_image_pixels is not None:
@@ -599,7 +594,7 @@ def create_app(
         finally:
             slot.release()
         data = service.ground(req.verb, rois, req.options)
-        data["image"] = {**size, "encoder": getattr(service.image_encoder, "id", None)}
+        data["image"] = {**size, "encoder": service.image_encoder.id if service.image_encoder is not None else None}
         return _json(data)
 
     @app.get("/docs", include_in_schema=False, response_class=HTMLResponse)
@@ -680,7 +675,7 @@ def _document_bodies(app: FastAPI, models: Sequence[type[BaseModel]]) -> None:
 ImageEncoderChoice = Literal["conse", "none"]
 
 
-def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1) -> Any | None:
+def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1) -> ImageEncoder | None:
     """The image encoder for ``/ground_image`` (``none``: the endpoint answers 503)."""
     if name == "none":
         return None

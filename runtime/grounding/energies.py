@@ -33,6 +33,8 @@ from typing import Any, Literal, get_args
 import numpy as np
 import numpy.typing as npt
 
+from ...schemas.v1.graph import KnowledgeGraph
+
 EnergyForm = Literal[
     "sum-tanh", "normalized-product", "specificity", "required-veto", "specificity-veto"
 ]
@@ -123,7 +125,7 @@ def energy_from_property_columns(
     ``q_weight [P, N]`` is the (expected) linked weight ``w_po 1[w_po >= tau]`` and ``q_link
     [P, N]`` the (expected) link indicator; for a KB object they are its own linked column and
     0/1 indicator, and the result equals :func:`affordance_energy_matrix`'s column. Inferred
-    objects (``runtime/open_world.py``) pass neighbour averages. ``specificity [P]`` is the
+    objects (``runtime/grounding/open_world.py``) pass neighbour averages. ``specificity [P]`` is the
     *KB's* (an object added at run time must not change what a property says); ``None`` for
     the forms that do not read it. The veto counts a required property as missing when its link
     probability is below one half.
@@ -163,30 +165,30 @@ def align_energy(cosine: float | FloatArray) -> float | FloatArray:
 
 
 def weight_matrices_from_graph(
-    graph: dict[str, Any], verbs: list[str], properties: list[str], objects: list[str]
+    graph: KnowledgeGraph, verbs: list[str], properties: list[str], objects: list[str]
 ) -> tuple[FloatArray, FloatArray]:
-    """``w_vp [V, P]`` and ``w_po [P, O]`` read back from a bundle's node-link ``graph.json``.
+    """``w_vp [V, P]`` and ``w_po [P, O]`` of a bundle's graph, in manifest order.
 
     The runtime needs the raw weights to score a bundle under the *other* E_aff form than the
     one its ``affordance_energy.npy`` was built with; the compiler is not importable here, so
-    the matrices are rebuilt from the edges (ids ``verb:``, ``prop:``, ``obj:``) in one pass.
+    the matrices are rebuilt from the graph's edges.
     """
-    v_index = {f"verb:{v}": i for i, v in enumerate(verbs)}
-    p_index = {f"prop:{p}": i for i, p in enumerate(properties)}
-    o_index = {f"obj:{o}": i for i, o in enumerate(objects)}
+    v_index = {v: i for i, v in enumerate(verbs)}
+    p_index = {p: i for i, p in enumerate(properties)}
+    o_index = {o: i for i, o in enumerate(objects)}
     w_vp = np.zeros((len(verbs), len(properties)), dtype=np.float32)  # [V, P]
     w_po = np.zeros((len(properties), len(objects)), dtype=np.float32)  # [P, O]
-    for edge in graph.get("edges", []):
-        src, dst, weight = edge["source"], edge["target"], float(edge["weight"])
-        if src in v_index and dst in p_index:
-            w_vp[v_index[src], p_index[dst]] = weight
-        elif src in p_index and dst in o_index:
-            w_po[p_index[src], o_index[dst]] = weight
+    for (v, p), weight in graph.vp_weights().items():
+        if v in v_index and p in p_index:
+            w_vp[v_index[v], p_index[p]] = weight
+    for (p, o), weight in graph.po_weights().items():
+        if p in p_index and o in o_index:
+            w_po[p_index[p], o_index[o]] = weight
     return w_vp, w_po
 
 
 def required_matrix_from_graph(
-    graph: dict[str, Any], verbs: list[str], properties: list[str]
+    graph: KnowledgeGraph, verbs: list[str], properties: list[str]
 ) -> BoolArray:
     """``required [V, P]``: True where a verb -> property edge has ``role: "required"``.
 
@@ -194,24 +196,13 @@ def required_matrix_from_graph(
     *helpful*; v1 bundles have no ``role`` attribute, read as helpful (all False), so the veto
     forms reduce to their base forms on them.
     """
-    v_index = {f"verb:{v}": i for i, v in enumerate(verbs)}
-    p_index = {f"prop:{p}": i for i, p in enumerate(properties)}
+    p_index = {p: i for i, p in enumerate(properties)}
     required = np.zeros((len(verbs), len(properties)), dtype=bool)  # [V, P]
-    for edge in graph.get("edges", []):
-        src, dst = edge["source"], edge["target"]
-        if src in v_index and dst in p_index and edge.get("role") == "required":
-            required[v_index[src], p_index[dst]] = True
+    for vi, v in enumerate(verbs):
+        for p, role in graph.roles(v).items():
+            if role == "required" and p in p_index:
+                required[vi, p_index[p]] = True
     return required
-
-
-def forbidden_pairs(graph: dict[str, Any]) -> list[tuple[str, str]]:
-    """``(verb, object)`` pairs a KB author marked "never pick" (verb attribute ``forbidden_objects``)."""
-    pairs: list[tuple[str, str]] = []
-    for node in graph.get("nodes", []):
-        if node.get("kind") == "verb":
-            for obj in node.get("forbidden_objects", []):
-                pairs.append((str(node["name"]), str(obj)))
-    return pairs
 
 
 def object_hypotheses(cosine: FloatArray, temperature: float) -> FloatArray:

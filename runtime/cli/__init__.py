@@ -1,0 +1,1 @@
+"""``craft``: one thin module per command group over the library; ``main`` assembles them."""

@@ -1,0 +1,64 @@
+"""What every ``craft`` command shares: the consoles, the exit codes, one ``fail``, the option
+types used by more than one command, and the resolution of grounding options into
+:class:`GroundingSettings`.
+
+Exit codes (both CLIs): 0 ok; 1 a check failed (verification commands); 2 bad input or usage
+(files, boxes, unknown verb, bundle refused).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from ..grounding.settings import GroundingSettings
+
+err = Console(stderr=True)
+out = Console()
+EXIT_CHECK_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
+    """Print ``error: message`` on stderr and exit with ``code`` (default: bad input)."""
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def note(message: str) -> None:
+    """A plain line on stderr ("wrote FILE"), never read as markup."""
+    err.print(message, highlight=False, markup=False)
+
+
+def grounding_settings(**options: Any) -> GroundingSettings:
+    """The grounding options of a command, validated once (a bad value exits 2 naming it)."""
+    try:
+        return GroundingSettings.of(**options)
+    except ValueError as exc:
+        fail(str(exc))
+
+
+def read_names(path: Path, what: str) -> list[str]:
+    """A one-name-per-line file (vocabulary, classes), or exit 2 naming it."""
+    from ..evaluation.common import read_name_list
+
+    try:
+        return read_name_list(path)
+    except OSError as exc:
+        fail(f"{path}: cannot read the {what} ({exc})")
+
+
+_FORMS = "sum-tanh | normalized-product | specificity | required-veto | specificity-veto"
+
+KbDirOpt = Annotated[Path | None, typer.Option(help="Folder of the baseline bundles (conceptnet/, direct-llm/).")]
+JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")]
+MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.")]
+TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated).")]
+AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
+EnergyFormOpt = Annotated[str | None, typer.Option(help=f"E_aff form: {_FORMS} (default: each bundle's).")]
+ThreadsOpt = Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")]
+NoCacheOpt = Annotated[bool, typer.Option(help="Do not read or write the on-disk image-embedding cache.")]

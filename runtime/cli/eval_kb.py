@@ -1,0 +1,51 @@
+"""``craft eval kb``: E_aff alone with perfect recognition, every bundle x E_aff form, dev labels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def eval_kb(
+    kb: Annotated[list[Path] | None, typer.Option(
+        help="Bundle(s) to score (repeatable; default: craft-e-default, direct-llm, conceptnet).")] = None,
+    labels: Annotated[list[str] | None, typer.Option(
+        help="zhu | sim-dev | labels .json {verb: [objects]} | verb,object .csv over sim assets "
+             "(repeatable; default: zhu and sim-dev).")] = None,
+    energy_form: Annotated[list[str] | None, typer.Option(
+        "--energy-form", help="E_aff form(s) (repeatable; default: every form).")] = None,
+    objects: Annotated[Path | None, typer.Option(
+        help="Candidate objects of a .json labels file without an \"_objects\" list "
+             "(default: the ImageNet vocabulary).")] = None,
+    episodes: Annotated[int, typer.Option(min=1, help="5-candidate episodes per verb.")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed of the episodes and the verb folds.")] = 0,
+    folds: Annotated[int, typer.Option(min=2, help="Leave-verbs-out folds.")] = 5,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.")] = None,
+) -> None:
+    """Knowledge alone: AP, AUC and 5-candidate top-1 of E_aff per verb, chance and oracle rows,
+    and leave-verbs-out choice of the E_aff form."""
+    from craft_e.runtime.cli.common import err, fail
+    from craft_e.runtime.evaluation.common import emit_report, read_name_list
+    from craft_e.runtime.evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
+    from craft_e.runtime.grounding.energies import ENERGY_FORMS, check_energy_form
+
+    try:
+        forms = [check_energy_form(f) for f in energy_form] if energy_form else list(ENERGY_FORMS)
+    except ValueError as exc:
+        fail(f"--energy-form: {exc}")
+    candidates = None
+    if objects is not None:
+        try:
+            candidates = read_name_list(objects)
+        except OSError as exc:
+            fail(f"{objects}: cannot read the objects file ({exc})")
+    try:
+        report = evaluate_kbs(kb or DEFAULT_KBS, labels or ["zhu", "sim-dev"], forms=forms,
+                              episodes_per_verb=episodes, seed=seed, folds=folds, objects=candidates)
+    except (KBLabelsError, FileNotFoundError) as exc:
+        fail(str(exc))
+    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+                lambda msg: err.print(msg, highlight=False, markup=False))

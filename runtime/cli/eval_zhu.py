@@ -1,0 +1,69 @@
+"""``craft eval zhu``: average precision of E_aff rankings on the Zhu et al. (2014) dev matrix."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from craft_e.paths import KB_DIR, shared_dir
+
+DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "conceptnet", KB_DIR / "direct-llm"]
+
+
+def eval_zhu(
+    kb: Annotated[
+        list[Path] | None, typer.Option(help="Bundle(s) to score (repeatable).")
+    ] = None,
+    matrix: Annotated[
+        Path | None, typer.Option(help="Zhu CSV (default: shared affordance_dev).")
+    ] = None,
+    markdown: Annotated[
+        Path | None, typer.Option(help="Write the Markdown table here.")
+    ] = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write per-affordance AP as JSON.")
+    ] = None,
+) -> None:
+    """Per affordance, AP of ranking the dev objects by E_aff — every E_aff form per bundle."""
+    from craft_e.runtime.cli.common import fail
+    from craft_e.runtime.evaluation.zhu import (
+        chance_ap,
+        evaluate_bundle,
+        markdown_table,
+        read_zhu_matrix,
+    )
+    from craft_e.runtime.grounding.energies import ENERGY_FORMS
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+
+    path = matrix or shared_dir() / "data/affordance_dev/zhu2014_affordance_matrix.csv"
+    if not path.is_file():
+        fail(f"{path}: Zhu matrix not found (set CRAFT_SHARED or pass --matrix)")
+    data = read_zhu_matrix(path)
+    columns: dict[str, dict[str, float]] = {"chance": chance_ap(data)}
+    for folder in kb or DEFAULT_KBS:
+        try:
+            bundle = load_bundle(folder)
+        except BundleError as exc:
+            fail(str(exc))
+        name = bundle.manifest.kb_name
+        if name == "direct-llm":  # one pseudo-property per verb: both forms rank alike
+            columns[name] = evaluate_bundle(bundle, data)
+            continue
+        for form in ENERGY_FORMS:
+            columns[f"{name} ({form})"] = evaluate_bundle(bundle, data, form)
+    table = markdown_table(columns)
+    typer.echo(table)
+    if markdown is not None:
+        header = (
+            "# Zhu et al. 2014 dev set: AP of ranking 62 objects by E_aff\n\n"
+            "Produced by `craft eval zhu --markdown docs/zhu_dev_ap.md` (columns: bundle and "
+            "E_aff form; `chance` = positive rate).\n\n"
+        )
+        markdown.write_text(header + table, encoding="utf-8")
+    if json_out is not None:
+        json_out.write_text(
+            json.dumps(columns, indent=1, sort_keys=True) + "\n", encoding="utf-8"
+        )

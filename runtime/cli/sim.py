@@ -1,0 +1,92 @@
+"""``craft sim demo``: one headless testbed episode with a figure, a GIF and the explanation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+DEFAULT_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
+
+
+def demo(
+    verb: Annotated[str, typer.Option(help="The request, e.g. cut.")],
+    seed: Annotated[int, typer.Option(help="Layout seed (also picks the target among the verb's pairs).")] = 0,
+    kb: Annotated[Path | None, typer.Option(help="Bundle (default artifacts/kb/craft-e-default).")] = None,
+    out: Annotated[Path, typer.Option(help="Folder for the PNG, GIF and episode JSON.")] = Path("out/sim_demo"),
+    labels: Annotated[Path | None, typer.Option(help="Labels CSV the target and distractors come from "
+                                                     "(default: artifacts/labels/sim_dev_labels.csv).")] = None,
+    target: Annotated[str | None, typer.Option(help="Target asset id or plain name among the verb's pairs.")] = None,
+    grasp: Annotated[str, typer.Option(help="grconvnet | ggcnn | ggcnn2 | antipodal | oracle.")] = "grconvnet",
+    rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
+    gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
+    threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 1,
+) -> None:
+    """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
+    from craft_e.paths import KB_DIR, REPO_ROOT
+    from craft_e.runtime.cli.common import err, fail
+    from craft_e.runtime.cli.common import out as console
+    from craft_e.runtime.evaluation.methods import MethodSpec, build_grounders
+    from craft_e.runtime.evaluation.sim_eval import (
+        LabelsError,
+        SimLabels,
+        default_encoder,
+        episode_record,
+        load_sim_labels,
+        make_episode_specs,
+    )
+    from craft_e.runtime.grounding.grounder import normalize_verb_name
+    from craft_e.runtime.grounding.settings import GroundingSettings
+    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.figures import FrameRecorder, describe, plot_episode
+    from craft_e.runtime.sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
+
+    try:
+        config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads)  # type: ignore[arg-type]
+        all_labels = load_sim_labels(labels or REPO_ROOT / DEFAULT_LABELS)
+    except (ValueError, LabelsError) as exc:
+        fail(str(exc))
+    name = normalize_verb_name(verb)
+    pairs = [p for p in all_labels.pairs if p.verb == name]
+    if not pairs:
+        fail(f"verb {name!r} has no pairs in {all_labels.path}; it has: {', '.join(all_labels.verbs)}")
+    if target is not None:
+        pairs = [p for p in pairs if target in (p.object, *p.assets)]
+        if not pairs:
+            fail(f"{target!r} does not afford {name!r} in {all_labels.path}")
+    pair = pairs[seed % len(pairs)]
+    chosen_labels = SimLabels(all_labels.path, (pair,), all_labels.affording)
+    spec = make_episode_specs(chosen_labels, layouts=1, seed=seed)[0]
+    bundle_path = kb or KB_DIR / "craft-e-default"
+    try:
+        bundle = load_bundle(bundle_path)
+    except BundleError as exc:
+        fail(str(exc))
+    method = bundle.manifest.kb_name
+    encoder = default_encoder(threads)
+    grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)], GroundingSettings(),
+                                sim_vocabulary())
+    err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
+              f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)
+    with SimEnv() as env:
+        recorder = FrameRecorder(env.client, every=gif_every)
+        env.step_hook = recorder
+
+        def start_recording(_: str) -> None:
+            recorder.active = True
+            recorder.snapshot()
+
+        result = run_episode(env, spec.scene, grounders, encoder, config, before_pick=start_recording)
+        if not recorder.frames:  # nothing was executed: a still of the scene
+            recorder.snapshot()
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"{name.replace(' ', '_')}_{seed}"
+    png = plot_episode(result, method, out / f"{stem}.png")
+    gif = recorder.save(out / f"{stem}.gif")
+    record = episode_record(spec, result)
+    (out / f"{stem}.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    console.print(describe(result, method), highlight=False, markup=False, soft_wrap=True)
+    err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False, markup=False)

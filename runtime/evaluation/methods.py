@@ -1,0 +1,114 @@
+"""The methods every benchmark compares, defined once: their specs (a bundle and the energy
+weights it is scored with), loading their bundles, and one ``Grounder`` per method built from the
+run's :class:`GroundingSettings` plus what the protocol fixes (vocabulary, alpha).
+
+A method that cannot run (its bundle is missing, unverifiable or in another embedding space) is
+skipped with the reason, never silently dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ...paths import KB_DIR
+from ..grounding.settings import GroundingSettings
+from .common import SkippedMethod
+
+if TYPE_CHECKING:
+    from ..grounding.grounder import Grounder
+    from ..kb.bundle import Bundle
+
+#: The paper's four rows of the testbed tables.
+SIM_METHODS = ("CRAFT-E", "CRAFT", "direct-LLM", "alignment-only")
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A row of the table: a bundle and the energy weights it is scored with."""
+
+    name: str
+    description: str
+    bundle: Path
+    beta: float = 1.0
+    gamma: float = 1.0
+
+
+def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR) -> list[MethodSpec]:
+    """CRAFT-E, CRAFT (ConceptNet KB), direct-LLM, and the two single-term ablations."""
+    craft_e = kb or kb_dir / "craft-e-default"
+    return [
+        MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e),
+        MethodSpec("CRAFT", "ConceptNet-derived KB + visual alignment", kb_dir / "conceptnet"),
+        MethodSpec("direct-LLM", "verb -> objects ranked directly by the LLM (+ alignment)", kb_dir / "direct-llm"),
+        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0, gamma=1.0),
+        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, beta=1.0, gamma=0.0),
+    ]
+
+
+def select_methods(
+    names: Sequence[str] | None = None, kb: Path | None = None, kb_dir: Path = KB_DIR
+) -> list[MethodSpec]:
+    """The named methods of :func:`default_methods` (default: the paper's four rows)."""
+    specs = {m.name: m for m in default_methods(kb, kb_dir)}
+    wanted = list(names) if names else list(SIM_METHODS)
+    unknown = [n for n in wanted if n not in specs]
+    if unknown:
+        raise ValueError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(specs)}")
+    return [specs[n] for n in dict.fromkeys(wanted)]
+
+
+def load_methods(
+    specs: Sequence[MethodSpec], text_space: str | None = None
+) -> tuple[list[tuple[MethodSpec, Bundle]], list[SkippedMethod]]:
+    """Load each method's bundle once; a method whose bundle is missing, unverifiable or (with
+    ``text_space``) in another embedding space is skipped with the reason."""
+    from ..kb.bundle import BundleError, load_bundle
+
+    loaded: dict[Path, Bundle | str] = {}
+    runnable: list[tuple[MethodSpec, Bundle]] = []
+    skipped: list[SkippedMethod] = []
+    for spec in specs:
+        if spec.bundle not in loaded:
+            try:
+                loaded[spec.bundle] = load_bundle(spec.bundle, check_encoder=False)
+            except BundleError as exc:
+                loaded[spec.bundle] = f"bundle unavailable: {exc}"
+        bundle = loaded[spec.bundle]
+        if isinstance(bundle, str):
+            skipped.append(SkippedMethod(spec.name, bundle))
+        elif text_space is not None and bundle.manifest.text_encoder.id != text_space:
+            skipped.append(SkippedMethod(spec.name, f"{spec.bundle}: text encoder "
+                                         f"{bundle.manifest.text_encoder.id}, the image encoder embeds "
+                                         f"into {text_space}"))
+        else:
+            runnable.append((spec, bundle))
+    return runnable, skipped
+
+
+def method_settings(spec: MethodSpec, settings: GroundingSettings, vocabulary: Sequence[str],
+                    alpha: float | None = None) -> GroundingSettings:
+    """The run's settings with the method's weights, the protocol's vocabulary (open
+    vocabulary on: benchmark verbs may be missing from a KB) and, where the protocol fixes it,
+    alpha (no grasps on ImageNet photos)."""
+    update: dict[str, object] = {"beta": spec.beta, "gamma": spec.gamma,
+                                 "vocabulary": tuple(vocabulary), "open_vocab": True}
+    if alpha is not None:
+        update["alpha"] = alpha
+    return settings.model_copy(update=update)
+
+
+def build_grounders(
+    runnable: Sequence[tuple[MethodSpec, Bundle]],
+    settings: GroundingSettings,
+    vocabulary: Sequence[str],
+    *,
+    alpha: float | None = None,
+) -> dict[str, Grounder]:
+    """One ``Grounder`` per method (see :func:`method_settings`)."""
+    from ..grounding.grounder import Grounder
+
+    return {spec.name: Grounder(bundle, method_settings(spec, settings, vocabulary, alpha))
+            for spec, bundle in runnable}

@@ -1,0 +1,143 @@
+"""Reading a bundle folder safely: the manifest and every listed file, each checked against its
+sha256 and size before use. Shared by the loader (``bundle``), packages (``package``), installs
+(``install``) and ``craftc pack``; imports nothing else of the runtime.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import stat
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from craft_e.schemas.v1.bundle import (
+    BUNDLE_FILES,
+    MANIFEST_FILE,
+    Manifest,
+    content_hash,
+    listed_files_ok,
+)
+
+SUPPORTED_SCHEMA_VERSIONS = (1,)
+#: Ceilings checked *before* reading: a manifest is kilobytes, a bundle file megabytes. A link to
+#: /dev/zero or a multi-GB file is refused by its size or type, never read until memory runs out.
+MAX_MANIFEST_BYTES = 16 << 20
+MAX_FILE_BYTES = 1 << 30
+
+
+class BundleError(RuntimeError):
+    """A bundle cannot be trusted or read; the message names the file and the fix."""
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def read_regular_file(path: Path, cap: int, expected: int | None = None) -> bytes:
+    """The bytes of ``path`` if it is a regular file of at most ``cap`` (or exactly ``expected``)
+    bytes; a FIFO, device, socket or oversized file is a ``BundleError`` before any read.
+
+    ``O_NONBLOCK`` makes opening a FIFO return at once (a plain open would wait for a writer
+    forever); the type and size come from ``fstat`` of the opened descriptor, so a file swapped
+    between the check and the read cannot slip through.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except IsADirectoryError:
+        raise BundleError(f"{path}: is a folder, not a bundle file; rebuild the bundle") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise BundleError(
+                f"{path}: not a regular file (a device, FIFO or socket); a bundle holds only "
+                "regular files — rebuild or re-install it"
+            )
+        if expected is not None and info.st_size != expected:
+            raise BundleError(
+                f"{path}: content does not match the manifest ({info.st_size} bytes, expected "
+                f"{expected}); the file was modified or truncated — rebuild or re-install the bundle"
+            )
+        if info.st_size > cap:
+            raise BundleError(
+                f"{path}: {info.st_size} bytes, more than {cap}; not a bundle file — rebuild or "
+                "re-install the bundle"
+            )
+        chunks: list[bytes] = []
+        left = info.st_size
+        with os.fdopen(os.dup(fd), "rb") as handle:
+            while left > 0:
+                chunk = handle.read(min(left, 1 << 20))
+                if not chunk:
+                    break
+                chunks.append(chunk)
+                left -= len(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def read_manifest(folder: Path) -> Manifest:
+    path = folder / MANIFEST_FILE
+    if not folder.is_dir():
+        raise BundleError(f"{folder}: not a bundle folder (build one with `craftc build`)")
+    try:
+        raw = json.loads(read_regular_file(path, MAX_MANIFEST_BYTES))
+    except FileNotFoundError:
+        raise BundleError(f"{path}: missing; this folder is not a CRAFT-E bundle") from None
+    except PermissionError:
+        raise BundleError(f"{path}: not readable by this user; fix the bundle's permissions") from None
+    except (ValueError, RecursionError) as exc:
+        raise BundleError(f"{path}: not valid JSON ({exc}); rebuild the bundle") from None
+    version = raw.get("schema_version") if isinstance(raw, dict) else None
+    if version not in SUPPORTED_SCHEMA_VERSIONS:
+        raise BundleError(
+            f"{path}: schema_version {version!r} is not supported by this runtime "
+            f"(supports {SUPPORTED_SCHEMA_VERSIONS}); rebuild with a matching craftc"
+        )
+    try:
+        return Manifest.model_validate(raw)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise BundleError(f"{path}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+
+
+def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
+    """Read every listed file and check its size and sha256, and the content hash."""
+    if not listed_files_ok(set(manifest.files)):
+        raise BundleError(
+            f"{folder / MANIFEST_FILE}: lists {sorted(manifest.files)}, expected {sorted(BUNDLE_FILES)}"
+        )
+    data: dict[str, bytes] = {}
+    for name, digest in sorted(manifest.files.items()):
+        path = folder / name
+        if digest.bytes > MAX_FILE_BYTES:
+            raise BundleError(
+                f"{folder / MANIFEST_FILE}: {name} is declared as {digest.bytes} bytes, more than "
+                f"a bundle file may be ({MAX_FILE_BYTES}); rebuild the bundle"
+            )
+        try:
+            blob = read_regular_file(path, MAX_FILE_BYTES, expected=digest.bytes)
+        except FileNotFoundError:
+            raise BundleError(
+                f"{path}: missing from the bundle; rebuild or re-install it"
+            ) from None
+        except PermissionError:
+            raise BundleError(f"{path}: not readable by this user; fix the bundle's permissions") from None
+        if len(blob) != digest.bytes or _sha256(blob) != digest.sha256:
+            raise BundleError(
+                f"{path}: content does not match the manifest (sha256 {_sha256(blob)[:16]}..., "
+                f"expected {digest.sha256[:16]}...); the file was modified or truncated — rebuild "
+                "or re-install the bundle"
+            )
+        data[name] = blob
+    if content_hash(manifest) != manifest.content_sha256:
+        raise BundleError(
+            f"{folder / MANIFEST_FILE}: content_sha256 does not match the manifest (a field was "
+            "edited after the build); rebuild or re-install the bundle"
+        )
+    return data
+
+

@@ -1,0 +1,1 @@
+"""``craft serve``: the HTTP service (``app``) over a loaded bundle and ``Grounder``."""
