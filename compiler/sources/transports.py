@@ -88,10 +88,19 @@ class _HTTPTransport:
 
 
 class OpenAITransport(_HTTPTransport):
-    """``POST {base_url}/chat/completions`` with a ``json_schema`` response format."""
+    """``POST {base_url}/chat/completions`` with a ``json_schema`` response format.
+
+    llama-cpp-python's server (``python -m llama_cpp.server``) rejects OpenAI's
+    ``{"type": "json_schema", ...}`` (HTTP 422 naming ``response_format``) and takes the schema
+    as ``{"type": "json_object", "schema": ...}`` instead, compiled into a grammar. On such a
+    rejection the transport resends once in that form and keeps using it; the record key does
+    not depend on the wire form, so records stay the same either way.
+    """
 
     provider = "openai"
     key_env = OPENAI_KEY_ENV
+    #: ``json_schema`` (OpenAI, vLLM, Ollama, llama.cpp's C++ server) or ``json_object``.
+    schema_format = "json_schema"
 
     def _auth_headers(self, api_key: str | None) -> dict[str, str]:
         return {"Authorization": f"Bearer {api_key}"} if api_key else {}
@@ -103,7 +112,9 @@ class OpenAITransport(_HTTPTransport):
             "messages": [{"role": m.role, "content": m.content} for m in request.messages],
             **request.params,
         }
-        if request.response_schema:
+        if request.response_schema and self.schema_format == "json_object":
+            body["response_format"] = {"type": "json_object", "schema": request.response_schema}
+        elif request.response_schema:
             body["response_format"] = {
                 "type": "json_schema",
                 "json_schema": {
@@ -118,8 +129,25 @@ class OpenAITransport(_HTTPTransport):
 
     def complete(self, request: RecordRequest) -> str:
         what = f"openai {request.model} {request.prompt} subject={request.subject!r}"
-        data = self._post(f"{self.base_url}/chat/completions", self.request_body(request), what)
+        url = f"{self.base_url}/chat/completions"
+        try:
+            data = self._post(url, self.request_body(request), what)
+        except FatalTransportError as exc:
+            if not (request.response_schema and self.schema_format == "json_schema"
+                    and rejects_json_schema(str(exc))):
+                raise
+            self.schema_format = "json_object"
+            try:
+                data = self._post(url, self.request_body(request), what)
+            except FatalTransportError:
+                self.schema_format = "json_schema"
+                raise exc from None
         return openai_answer_text(data, what)
+
+
+def rejects_json_schema(message: str) -> bool:
+    """A 400/422 that names ``response_format``: the server wants another JSON-schema form."""
+    return ("HTTP 400" in message or "HTTP 422" in message) and "response_format" in message
 
 
 class GeminiTransport(_HTTPTransport):
