@@ -40,8 +40,9 @@ INDEX_FILE = "SHA256SUMS"
 EMBEDDING_INDEX_FILE = "INDEX.tsv"
 _LOCK_FILE = ".index.lock"
 #: Folders under the cache root that hold no records (embeddings, the runtime's encoder caches,
-#: lock files), so ``verify`` never calls their files orphaned records.
-NON_RECORD_FOLDERS = frozenset({"embeddings", "encoders", "locks"})
+#: lock files, the state of batch jobs in flight), so ``verify`` never calls their files
+#: orphaned records.
+NON_RECORD_FOLDERS = frozenset({"embeddings", "encoders", "locks", "batches"})
 #: No record is anywhere near this; a bigger file is refused before it is read.
 MAX_RECORD_BYTES = 64 * 1024 * 1024
 

@@ -46,7 +46,7 @@ stdout = Console()
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_SOURCE_FAILED = 3
-PROVIDERS = ("replay", "openai", "gemini")
+PROVIDERS = ("replay", "openai", "gemini", "openai-batch", "gemini-batch")
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
@@ -85,7 +85,11 @@ def build(
         Path, typer.Option(help="Objects file (default: the union vocabulary).")
     ] = VOCAB_DIR / "union_objects.txt",
     provider: Annotated[
-        str, typer.Option(help="replay (cache only) | openai | gemini (cache-first, then live).")
+        str,
+        typer.Option(
+            help="replay (cache only) | openai | gemini (cache-first, then live) | openai-batch "
+            "| gemini-batch (the misses of each stage as one batch job; same records)."
+        ),
     ] = "replay",
     model: Annotated[
         str | None, typer.Option(help="Model id (default: craft-e-curators for replay).")
@@ -144,6 +148,20 @@ def build(
             help="Stage 2b: also read per-property answers over all objects (w_po = the larger)."
         ),
     ] = False,
+    concurrency: Annotated[
+        int, typer.Option(min=1, help="Live requests in flight at once (openai, gemini).")
+    ] = 4,
+    timeout: Annotated[
+        float | None,
+        typer.Option(min=0.1, help="Seconds one live HTTP request may take (default: 120 read)."),
+    ] = None,
+    batch_wait: Annotated[
+        float | None,
+        typer.Option(
+            help="Batch providers: stop waiting after this many seconds (exit 3; the batch "
+            "keeps running and the same command resumes it). Default: wait until it ends."
+        ),
+    ] = None,
 ) -> None:
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
     from pydantic import ValidationError
@@ -159,11 +177,20 @@ def build(
     if mode not in ("llm", "conceptnet", "direct", "llm+direct"):
         fail(f"unknown mode {mode!r}; choose llm, conceptnet, direct or llm+direct")
     transport = None
-    if provider != "replay":
+    batch_backend = None
+    if provider.endswith("-batch"):
+        from craft_e.compiler.sources.batch import make_batch_backend
+
+        try:
+            batch_backend = make_batch_backend(provider, model, base_url, timeout_s=timeout)
+        except ValueError as exc:
+            fail(str(exc))
+        identity, model_id = batch_backend.provider, batch_backend.model
+    elif provider != "replay":
         from craft_e.compiler.sources.transports import make_transport
 
         try:
-            transport = make_transport(provider, model=model, base_url=base_url)
+            transport = make_transport(provider, model=model, base_url=base_url, timeout_s=timeout)
         except ValueError as exc:
             fail(str(exc))
         identity, model_id = transport.provider, transport.model
@@ -187,6 +214,7 @@ def build(
             force=force,
             prompt_version=_prompt_version(prompts),
             property_pass=property_pass,
+            concurrency=concurrency,
         )
     except ValidationError as exc:
         fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
@@ -199,7 +227,20 @@ def build(
                     tasks[stage] = bar.add_task(stage, total=None)
                 bar.advance(tasks[stage], n)
 
-            result = run_build(config, transport=transport, progress=tick)
+            batch = None
+            if batch_backend is not None:
+                from craft_e.compiler.cache import RecordCache
+                from craft_e.compiler.sources.batch import BatchLLMSource
+
+                batch = BatchLLMSource(
+                    cache=RecordCache(config.cache_root),
+                    provider=identity,
+                    model=model_id,
+                    backend=batch_backend,
+                    max_wait_s=batch_wait,
+                    log=lambda text: err.print(escape(text), highlight=False),
+                )
+            result = run_build(config, transport=transport, progress=tick, batch=batch)
     except VocabError as exc:
         fail(str(exc))
     except SourceError as exc:
