@@ -43,6 +43,8 @@ def register(app: typer.Typer) -> None:
         energy_form: Annotated[str | None, typer.Option(help="E_aff form: sum-tanh | normalized-product | specificity | required-veto | specificity-veto "
                                                             "(default: each bundle's).")] = None,
         aff_mode: Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")] = "expected",
+        jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
+                                                      "to --jobs 1).")] = 1,
     ) -> None:
         """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
         from craft_e.paths import KB_DIR
@@ -70,10 +72,32 @@ def register(app: typer.Typer) -> None:
             with ProgressBar() as bar:
                 report = evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                       max_pairs=max_pairs, energy_form=energy_form,
-                                      aff_mode=cast("AffMode", aff_mode), progress=bar)
+                                      aff_mode=cast("AffMode", aff_mode), progress=bar, jobs=jobs)
         except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError) as exc:
             fail(str(exc))
         err.print(f"{report.config['episodes']} episodes in {time.perf_counter() - start:.0f} s", highlight=False)
+        emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+                    lambda msg: err.print(msg, highlight=False))
+
+
+    @eval_app.command("recognition")
+    def eval_recognition(
+        views: Annotated[int, typer.Option(min=1, help="Renders per asset (seeded pose on the table).")] = 3,
+        seed: Annotated[int, typer.Option(help="Seed of the poses.")] = 0,
+        threads: Annotated[int, typer.Option(min=1, help="Torch threads of the image encoder.")] = 1,
+        json_out: Annotated[Path | None, typer.Option("--json", help="Write the table (and per-asset hits) as JSON.")] = None,
+        markdown: Annotated[Path | None, typer.Option(help="Write the Markdown table.")] = None,
+    ) -> None:
+        """Recognition top-1/top-5 of the 74 rendered sim assets under each perception setting."""
+        from craft_e.runtime.cli import err
+        from craft_e.runtime.evaluation.common import emit_report
+        from craft_e.runtime.evaluation.recognition import evaluate_recognition
+
+        start = time.perf_counter()
+        with ProgressBar() as bar:
+            report = evaluate_recognition(views, seed, threads=threads,
+                                          progress=lambda d, t: bar(d, t, {"id": "rendering"}))
+        err.print(f"{report.config['images']} images in {time.perf_counter() - start:.0f} s", highlight=False)
         emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
                     lambda msg: err.print(msg, highlight=False))
 

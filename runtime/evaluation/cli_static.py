@@ -38,6 +38,8 @@ def register(app: typer.Typer) -> None:
         energy_form: Annotated[str | None, typer.Option(help="E_aff form: sum-tanh | normalized-product | specificity | required-veto | specificity-veto "
                                                             "(default: each bundle's).")] = None,
         aff_mode: Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")] = "expected",
+        jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
+                                                      "to --jobs 1).")] = 1,
     ) -> None:
         """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
         from craft_e.paths import KB_DIR, REPO_ROOT
@@ -68,7 +70,7 @@ def register(app: typer.Typer) -> None:
                                          layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
                                          noise=levels, threads=threads,
                                          energy_form=energy_form,
-                                         aff_mode=cast("AffMode", aff_mode), progress=bar)
+                                         aff_mode=cast("AffMode", aff_mode), progress=bar, jobs=jobs)
         except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError,
                 ValueError, RuntimeError) as exc:
             fail(str(exc))
