@@ -12,6 +12,7 @@ that it resumes a recorded batch id after a crash instead of submitting a new ba
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from email.parser import BytesParser
@@ -346,3 +347,75 @@ def test_cli_batch_failure_exits_3_naming_subjects(
         assert f"subject='{verb}'" in text
     assert "model_not_found" in text
     assert not (tmp_path / "kb").exists()
+
+
+class BatchService:
+    """A stateful OpenAI Batch API stand-in that answers from the kb_small fixture answers.
+
+    It speaks the same exchanges as the transcript (upload, create, poll, output file) and
+    answers each request of a batch by its prompt and subject, so a whole two-stage build can
+    run through ``--provider openai-batch``.
+    """
+
+    def __init__(self) -> None:
+        self.answers: dict[tuple[str, str], dict[str, Any]] = {}
+        for name, field_name in (("verb_properties", "verb"), ("object_properties", "object")):
+            for line in (KB_SMALL / f"{name}.jsonl").read_text(encoding="utf-8").splitlines():
+                if line.strip() and not line.startswith(("//", "#")):
+                    payload = json.loads(line)
+                    self.answers[(name, payload[field_name])] = payload
+        self.inputs: list[list[dict[str, Any]]] = []
+        self.outputs: dict[str, bytes] = {}
+
+    def __call__(self, request: Received) -> Reply:
+        if request.route == "/v1/files":
+            raw = b"Content-Type: " + request.headers["Content-Type"].encode() + b"\r\n\r\n" + request.body
+            parts = {p.get_param("name", header="content-disposition"): p
+                     for p in BytesParser(policy=email_policy).parsebytes(raw).iter_parts()}
+            rows = [json.loads(x) for x in parts["file"].get_payload(decode=True).decode().splitlines()]
+            self.inputs.append(rows)
+            return Reply(200, {"id": f"file-in{len(self.inputs)}", "object": "file", "purpose": "batch"})
+        if request.route == "/v1/batches":
+            n = len(self.inputs)
+            lines = []
+            for row in self.inputs[-1]:
+                user = row["body"]["messages"][-1]["content"]
+                match = re.search(r'^(Verb|Object): "([^"]+)"$', user, re.MULTILINE)
+                assert match, user
+                prompt = "verb_properties" if match[1] == "Verb" else "object_properties"
+                subject = match[2]
+                body = {"choices": [{"index": 0, "finish_reason": "stop", "message": {
+                    "role": "assistant", "content": json.dumps(self.answers[(prompt, subject)])}}]}
+                lines.append(json.dumps({"custom_id": row["custom_id"], "error": None,
+                                         "response": {"status_code": 200, "body": body}}))
+            self.outputs[f"file-out{n}"] = ("\n".join(lines) + "\n").encode()
+            return Reply(200, _batch_object("validating", id=f"batch_{n}"))
+        if request.route.startswith("/v1/batches/batch_"):
+            n = request.route.rsplit("_", 1)[-1]
+            return Reply(200, _batch_object("completed", id=f"batch_{n}", output_file_id=f"file-out{n}"))
+        if request.route.startswith("/v1/files/file-out"):
+            return Reply(200, self.outputs[request.route.split("/")[3]])
+        return Reply(404, {"error": {"message": f"not served: {request.route}"}})
+
+
+def test_cli_batch_build_replays_identically(
+    tmp_path: Path, clone_cache: Callable[[Path], Path]
+) -> None:
+    cache = clone_cache(tmp_path / "cache")  # warm embeddings; its records are another provider's
+    service = BatchService()
+    common = ["--verbs", str(KB_SMALL / "verbs.txt"), "--objects", str(KB_SMALL / "objects.txt"),
+              "--prompts", "v1", "--cache", str(cache), "--name", "batch-kb", "--quiet"]
+    env = {"COLUMNS": "2000", "OPENAI_API_KEY": ""}
+    with FakeServer(responder=service) as server:
+        result = CliRunner().invoke(app, ["build", *common, "--provider", "openai-batch",
+                                          "--base-url", server.url + "/v1", "--model", "gpt-test",
+                                          "--out", str(tmp_path / "batch")], env=env)
+    assert result.exit_code == 0, result.output
+    assert [len(rows) for rows in service.inputs] == [3, 4]  # one batch per stage: verbs, objects
+    replay = CliRunner().invoke(app, ["build", *common, "--record-provider", "openai", "--model",
+                                      "gpt-test", "--out", str(tmp_path / "replay")], env=env)
+    assert replay.exit_code == 0, replay.output
+    a = json.loads((tmp_path / "batch" / "manifest.json").read_text())
+    b = json.loads((tmp_path / "replay" / "manifest.json").read_text())
+    assert a["content_sha256"] == b["content_sha256"]
+    assert {s["provider"] for s in a["sources"]} == {"openai"}
