@@ -17,7 +17,7 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -27,29 +27,42 @@ from servers import FakeServer, Received, Reply, openai_reply
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, FatalTransportError, LLMSource
-from craft_e.compiler.sources.transports import OpenAITransport, rejects_json_schema
+from craft_e.compiler.sources.transports import (
+    OpenAITransport,
+    grammar_schema,
+    rejects_json_schema,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "scripts" / "local_llm"
 VALID = json.dumps({"verb": "cut", "properties": [{"name": "sharp edge", "weight": 0.9}]})
-#: What llama-cpp-python's server (FastAPI) answers to ``"type": "json_schema"``.
-REJECTED = Reply(422, {"detail": [{
+#: What llama-cpp-python 0.3.36's server answers to ``"type": "json_schema"`` (its route error
+#: handler turns the request validation error into a 500; seen from the real server).
+REJECTED = Reply(500, {"error": {"message": (
+    "1 validation error:\n  {'type': 'literal_error', 'loc': ('body', 'response_format', "
+    "'type'), 'msg': \"Input should be 'text' or 'json_object'\", 'input': 'json_schema'}"
+), "type": "internal_server_error"}})
+#: The same rejection as plain FastAPI words it.
+REJECTED_422 = Reply(422, {"detail": [{
     "type": "literal_error", "loc": ["body", "response_format", "type"],
     "msg": "Input should be 'text' or 'json_object'", "input": "json_schema",
 }]})
 
 
-def llama_cpp_python_server(request: Received) -> Reply:
-    fmt = request.json().get("response_format", {})
-    if fmt.get("type") != "json_object":
-        return REJECTED
-    assert set(fmt) == {"type", "schema"} and fmt["schema"]["type"] == "object"
-    return openai_reply(VALID)
+def llama_cpp_python(rejection: Reply) -> Callable[[Received], Reply]:
+    def respond(request: Received) -> Reply:
+        fmt = request.json().get("response_format", {})
+        if fmt.get("type") != "json_object":
+            return rejection
+        assert set(fmt) == {"type", "schema"} and fmt["schema"]["type"] == "object"
+        return openai_reply(VALID)
+
+    return respond
 
 
-@pytest.fixture
-def server() -> Iterator[FakeServer]:
-    with FakeServer(responder=llama_cpp_python_server) as fake:
+@pytest.fixture(params=[REJECTED, REJECTED_422], ids=["500", "422"])
+def server(request: pytest.FixtureRequest) -> Iterator[FakeServer]:
+    with FakeServer(responder=llama_cpp_python(request.param)) as fake:
         yield fake
 
 
@@ -70,7 +83,10 @@ def test_schema_rejected_as_json_schema_is_resent_as_json_object(
     source.fetch(verb_call("slice", version="v1"))
     assert [r.json()["response_format"]["type"] for r in server.received[2:]] == ["json_object"]
     sent = server.received[1].json()["response_format"]["schema"]
-    assert sent == first.request.response_schema
+    assert sent == grammar_schema(first.request.response_schema)
+    # the grammar cannot bound numbers: weights in [0, 1] go out as an enum of 0.05 steps
+    weight = sent["$defs"]["ScoredProperty"]["properties"]["weight"]
+    assert weight["enum"] == [i / 20 for i in range(21)] and weight["maximum"] == 1.0
     assert first.request.provider == "openai" and first.request.model == "SmolLM2-135M-Instruct.Q4_1"
     assert len(list(source.cache.iter_records(LLM_SOURCE))) == 2
 
@@ -93,7 +109,7 @@ def test_other_client_errors_are_not_resent(tmp_path: Path) -> None:
 
 def test_a_failed_resend_reports_the_first_rejection(tmp_path: Path) -> None:
     other = Reply(400, {"error": {"message": "grammar could not be built"}})
-    with FakeServer([REJECTED, other]) as fake:
+    with FakeServer([REJECTED_422, other]) as fake:
         source = _source(tmp_path, fake.url)
         with pytest.raises(FatalTransportError, match=r"HTTP 422.*response_format"):
             source.fetch(verb_call("cut", version="v1"))
@@ -103,9 +119,12 @@ def test_a_failed_resend_reports_the_first_rejection(tmp_path: Path) -> None:
 
 
 def test_rejects_json_schema_needs_status_and_field() -> None:
-    assert rejects_json_schema("openai m p: HTTP 422: {\"detail\": [{\"loc\": [\"body\", \"response_format\"]}]}")
-    assert not rejects_json_schema("openai m p: HTTP 422: unprocessable")
-    assert not rejects_json_schema("openai m p: HTTP 500: response_format")
+    assert rejects_json_schema("x: HTTP 422: loc body response_format type, input json_schema")
+    assert rejects_json_schema("x: HTTP 500: 'response_format', 'type'), 'input': 'json_schema'")
+    assert not rejects_json_schema("x: HTTP 422: unprocessable")
+    assert not rejects_json_schema("x: HTTP 500: overloaded")
+    assert not rejects_json_schema("x: HTTP 503: response_format json_schema")
+    assert not rejects_json_schema("x: timed out (response_format json_schema)")
 
 
 def _load_script() -> ModuleType:
