@@ -18,10 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 from safetensors.numpy import save as save_safetensors
 
 from craft_e import __version__
@@ -58,6 +58,9 @@ from craft_e.schemas.v1.bundle import (
     sealed,
 )
 
+if TYPE_CHECKING:
+    from craft_e.compiler.sources.batch import BatchLLMSource
+
 KnowledgeMode = Literal["llm", "conceptnet", "direct", "llm+direct"]
 VERB_TEMPLATE = "something to {verb}"
 
@@ -84,6 +87,7 @@ class BuildConfig(BaseModel):
     force: bool = False
     prompt_version: Literal["v1", "v2"] = DEFAULT_PROMPT_VERSION
     property_pass: bool = False  # stage 2b: also ask per property over all objects (max w_po)
+    concurrency: int = Field(default=4, ge=1)  # live synchronous requests in flight at once
 
 
 @dataclass
@@ -107,13 +111,18 @@ def _source_pass(
     cache: RecordCache,
     transport: Transport | None,
     progress: Progress | None,
+    batch: BatchLLMSource | None = None,
 ) -> KnowledgeDraft:
     if config.mode == "conceptnet":
         from craft_e.compiler.sources.conceptnet import conceptnet_draft
 
         return conceptnet_draft(verbs.names, objects.names, config.conceptnet, cache, progress)
-    source = LLMSource(
-        cache=cache, provider=config.provider, model=config.model, transport=transport
+    source = batch or LLMSource(
+        cache=cache,
+        provider=config.provider,
+        model=config.model,
+        transport=transport,
+        max_concurrency=config.concurrency,
     )
     version, glosses = config.prompt_version, objects.glosses
     if config.mode == "direct":
@@ -166,9 +175,16 @@ def _embeddings(
 
 
 def build(
-    config: BuildConfig, transport: Transport | None = None, progress: Progress | None = None
+    config: BuildConfig,
+    transport: Transport | None = None,
+    progress: Progress | None = None,
+    batch: BatchLLMSource | None = None,
 ) -> BuildResult:
-    """Run every pass and emit the bundle at ``config.out`` (atomically)."""
+    """Run every pass and emit the bundle at ``config.out`` (atomically).
+
+    ``batch`` (``--provider openai-batch|gemini-batch``) answers each stage's missing records
+    with one batch job instead of ``transport``'s synchronous calls.
+    """
     started = time.perf_counter()
     # Refuse a destructive --out before any work (and again right before the swap).
     inputs: tuple[Path, ...] = (config.verbs_file, config.objects_file, config.cache_root)
@@ -179,7 +195,7 @@ def build(
     objects = read_vocabulary(config.objects_file, kind="objects")
     cache = RecordCache(config.cache_root)
 
-    draft = _source_pass(config, verbs, objects, cache, transport, progress)
+    draft = _source_pass(config, verbs, objects, cache, transport, progress, batch)
     draft.count("read_vocabulary", "verbs", len(verbs.names))
     draft.count("read_vocabulary", "objects", len(objects.names))
     draft.count("read_vocabulary", "normalization notes", len(verbs.notes) + len(objects.notes))

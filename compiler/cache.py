@@ -23,7 +23,7 @@ import json
 import os
 import tempfile
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -44,8 +44,9 @@ INDEX_FILE = "SHA256SUMS"
 EMBEDDING_INDEX_FILE = "INDEX.tsv"
 _LOCK_FILE = ".index.lock"
 #: Folders under the cache root that hold no records (embeddings, the runtime's encoder caches,
-#: lock files), so ``verify`` never calls their files orphaned records.
-NON_RECORD_FOLDERS = frozenset({"embeddings", "encoders", "locks"})
+#: lock files, the state of batch jobs in flight), so ``verify`` never calls their files
+#: orphaned records.
+NON_RECORD_FOLDERS = frozenset({"embeddings", "encoders", "locks", "batches"})
 #: No record is anywhere near this; a bigger file is refused before it is read.
 MAX_RECORD_BYTES = 64 * 1024 * 1024
 
@@ -126,6 +127,19 @@ class VerifyReport:
     @property
     def ok(self) -> bool:
         return not self.corrupt and not self.orphaned and not self.unindexed
+
+
+@dataclass
+class StatsRow:
+    """``craftc cache stats``: records and bytes of one source/provider/model/prompt version."""
+
+    source: str
+    provider: str
+    model: str
+    prompt: str
+    version: str
+    records: int = 0
+    bytes: int = 0
 
 
 class RecordCache:
@@ -210,6 +224,29 @@ class RecordCache:
                 atomic_write_bytes(folder / INDEX_FILE, _index_bytes(entries))
         return added, pruned, mismatched
 
+    def remove(self, source: str, keys: Iterable[str]) -> list[str]:
+        """Delete the records ``keys`` of ``source`` and drop their ``SHA256SUMS`` entries.
+
+        Under the folder's index lock, files go first and the index is rewritten after, so a
+        crash in between leaves entries without files (``craftc cache index`` prunes them),
+        never a record without its entry. Returns the file names deleted.
+        """
+        folder = self.root / source
+        removed: list[str] = []
+        with _index_lock(folder):
+            for key in sorted(set(keys)):
+                path = self.path_for(source, key)
+                try:
+                    path.unlink()
+                except FileNotFoundError:
+                    continue
+                removed.append(path.name)
+            entries = read_index(folder / INDEX_FILE)
+            kept = {n: d for n, d in entries.items() if n not in set(removed)}
+            if kept != entries:
+                atomic_write_bytes(folder / INDEX_FILE, _index_bytes(kept))
+        return removed
+
     def iter_records(self, source: str) -> Iterator[tuple[Path, Record]]:
         """Every record of a source, in key order (deterministic)."""
         folder = self.root / source
@@ -264,7 +301,8 @@ class RecordCache:
         return report
 
     def stats(self) -> dict[str, dict[str, int]]:
-        """Per source: record count, bytes, and records per provider/prompt."""
+        """Per source: record count, bytes, records per provider:prompt and per
+        provider/model/prompt@version."""
         out: dict[str, dict[str, int]] = {}
         for source in self.sources():
             counter: Counter[str] = Counter()
@@ -274,10 +312,29 @@ class RecordCache:
                 try:
                     head = json.loads(path.read_bytes())["request"]
                     counter[f"{head['provider']}:{head['prompt']}"] += 1
+                    counter[f"{head['provider']}/{head['model']}/{head['prompt']}"] += 1
                 except (ValueError, KeyError, TypeError):
                     counter["unreadable"] += 1
             out[source] = dict(sorted(counter.items()))
         return out
+
+    def stats_rows(self) -> list[StatsRow]:
+        """One row per source, provider, model, prompt id and prompt version (records and
+        bytes), sorted; files that are not readable records share one row per source."""
+        rows: dict[tuple[str, str, str, str, str], StatsRow] = {}
+        for source in self.sources():
+            for path in sorted((self.root / source).glob("*.json")):
+                size = path.stat().st_size
+                try:
+                    head = json.loads(path.read_bytes())["request"]
+                    prompt_id, _, version = str(head["prompt"]).partition("@")
+                    group = (source, str(head["provider"]), str(head["model"]), prompt_id, version)
+                except (ValueError, KeyError, TypeError):
+                    group = (source, "?", "?", "unreadable", "")
+                row = rows.setdefault(group, StatsRow(*group))
+                row.records += 1
+                row.bytes += size
+        return [rows[k] for k in sorted(rows)]
 
     def _parse(
         self, path: Path, data: bytes, expected_key: str, *, check_index: bool = True

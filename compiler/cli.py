@@ -46,7 +46,7 @@ app.add_typer(curate_app, name="curate")
 stdout = Console()
 
 EXIT_SOURCE_FAILED = 3
-PROVIDERS = ("replay", "openai", "gemini")
+PROVIDERS = ("replay", "openai", "gemini", "openai-batch", "gemini-batch")
 
 
 PromptsOpt = Annotated[
@@ -78,7 +78,11 @@ def build(
         Path, typer.Option(help="Objects file (default: the union vocabulary).")
     ] = VOCAB_DIR / "union_objects.txt",
     provider: Annotated[
-        str, typer.Option(help="replay (cache only) | openai | gemini (cache-first, then live).")
+        str,
+        typer.Option(
+            help="replay (cache only) | openai | gemini (cache-first, then live) | openai-batch "
+            "| gemini-batch (the misses of each stage as one batch job; same records)."
+        ),
     ] = "replay",
     model: Annotated[
         str | None, typer.Option(help="Model id (default: craft-e-curators for replay).")
@@ -137,6 +141,20 @@ def build(
             help="Stage 2b: also read per-property answers over all objects (w_po = the larger)."
         ),
     ] = False,
+    concurrency: Annotated[
+        int, typer.Option(min=1, help="Live requests in flight at once (openai, gemini).")
+    ] = 4,
+    timeout: Annotated[
+        float | None,
+        typer.Option(min=0.1, help="Seconds one live HTTP request may take (default: 120 read)."),
+    ] = None,
+    batch_wait: Annotated[
+        float | None,
+        typer.Option(
+            help="Batch providers: stop waiting after this many seconds (exit 3; the batch "
+            "keeps running and the same command resumes it). Default: wait until it ends."
+        ),
+    ] = None,
 ) -> None:
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
     from pydantic import ValidationError
@@ -152,11 +170,20 @@ def build(
     if mode not in ("llm", "conceptnet", "direct", "llm+direct"):
         fail(f"unknown mode {mode!r}; choose llm, conceptnet, direct or llm+direct")
     transport = None
-    if provider != "replay":
+    batch_backend = None
+    if provider.endswith("-batch"):
+        from craft_e.compiler.sources.batch import make_batch_backend
+
+        try:
+            batch_backend = make_batch_backend(provider, model, base_url, timeout_s=timeout)
+        except ValueError as exc:
+            fail(str(exc))
+        identity, model_id = batch_backend.provider, batch_backend.model
+    elif provider != "replay":
         from craft_e.compiler.sources.transports import make_transport
 
         try:
-            transport = make_transport(provider, model=model, base_url=base_url)
+            transport = make_transport(provider, model=model, base_url=base_url, timeout_s=timeout)
         except ValueError as exc:
             fail(str(exc))
         identity, model_id = transport.provider, transport.model
@@ -180,6 +207,7 @@ def build(
             force=force,
             prompt_version=_prompt_version(prompts),
             property_pass=property_pass,
+            concurrency=concurrency,
         )
     except ValidationError as exc:
         fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
@@ -192,7 +220,20 @@ def build(
                     tasks[stage] = bar.add_task(stage, total=None)
                 bar.advance(tasks[stage], n)
 
-            result = run_build(config, transport=transport, progress=tick)
+            batch = None
+            if batch_backend is not None:
+                from craft_e.compiler.cache import RecordCache
+                from craft_e.compiler.sources.batch import BatchLLMSource
+
+                batch = BatchLLMSource(
+                    cache=RecordCache(config.cache_root),
+                    provider=identity,
+                    model=model_id,
+                    backend=batch_backend,
+                    max_wait_s=batch_wait,
+                    log=lambda text: err.print(escape(text), highlight=False),
+                )
+            result = run_build(config, transport=transport, progress=tick, batch=batch)
     except VocabError as exc:
         fail(str(exc))
     except SourceError as exc:
@@ -410,11 +451,105 @@ def cache_index(cache: CacheOpt = CACHE_DIR) -> None:
 
 
 @cache_app.command("stats")
-def cache_stats(cache: CacheOpt = CACHE_DIR) -> None:
-    """Records and bytes per source, provider and prompt."""
+def cache_stats(
+    cache: CacheOpt = CACHE_DIR,
+    table: Annotated[
+        bool, typer.Option(help="A table per source/provider/model/prompt version instead of JSON.")
+    ] = False,
+) -> None:
+    """Records and bytes per source, provider, model and prompt version."""
     from craft_e.compiler.cache import RecordCache
 
-    stdout.print_json(json.dumps(RecordCache(cache).stats()))
+    store = RecordCache(cache)
+    if not table:
+        stdout.print_json(json.dumps(store.stats()))
+        return
+    from rich.table import Table
+
+    view = Table("source", "provider", "model", "prompt", "version", "records", "bytes")
+    for row in store.stats_rows():
+        view.add_row(*(escape(x) for x in (row.source, row.provider, row.model, row.prompt,
+                                           row.version)), str(row.records), f"{row.bytes:,}")
+    stdout.print(view)
+
+
+@cache_app.command("clean")
+def cache_clean(
+    cache: CacheOpt = CACHE_DIR,
+    verbs: Annotated[
+        Path | None, typer.Option(help="Also keep what a replay build of these verbs reads.")
+    ] = None,
+    objects: Annotated[Path, typer.Option(help="Objects file of that build.")] = VOCAB_DIR
+    / "union_objects.txt",
+    mode: Annotated[
+        list[str] | None,
+        typer.Option(help="Modes of that build: llm | direct | llm+direct (repeatable; default llm)."),
+    ] = None,
+    prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
+    property_pass: Annotated[bool, typer.Option(help="That build reads stage 2b too.")] = False,
+    record_provider: Annotated[str, typer.Option(help="Whose records that build replays.")] = "curated",
+    model: Annotated[str, typer.Option(help="Model id of those records.")] = "craft-e-curators",
+    bundles: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Bundle folders (or folders of bundles) whose records are kept "
+            "(repeatable; default: every shipped bundle, artifacts/kb)."
+        ),
+    ] = None,
+    yes: Annotated[bool, typer.Option("--yes", help="Delete (default: a dry run).")] = False,
+) -> None:
+    """Drop llm records no build references (a dry run unless --yes).
+
+    Kept: every record a bundle's graph.json provenance names (and records of the same
+    provider, model, prompt and subject), and with --verbs every record a replay build of
+    those inputs reads. SHA256SUMS stays consistent.
+    """
+    from craft_e.compiler.cache import CacheError, RecordCache
+    from craft_e.compiler.cache_clean import (
+        ReferencesError,
+        build_references,
+        bundle_references,
+        plan_clean,
+        with_siblings,
+    )
+    from craft_e.compiler.sources.llm import LLM_SOURCE, SourceError
+    from craft_e.compiler.vocab import VocabError
+    from craft_e.paths import KB_DIR
+
+    store = RecordCache(cache)
+    try:
+        keys, graphs = bundle_references(bundles or [KB_DIR])
+        referenced = with_siblings(store, keys)
+        if verbs is not None:
+            referenced |= build_references(
+                store, verbs, objects, mode or ["llm"], provider=record_provider, model=model,
+                prompt_version=_prompt_version(prompts), property_pass=property_pass,
+            )
+        elif not graphs:
+            fail("no bundle found to keep records for (--bundles) and no build given (--verbs); "
+                 "refusing to call every record unreferenced")
+        plan = plan_clean(store, referenced, graphs)
+    except (ReferencesError, VocabError) as exc:
+        fail(str(exc))
+    except SourceError as exc:
+        fail(f"{exc} (the build's references are unknown; nothing deleted)", EXIT_SOURCE_FAILED)
+    except (CacheError, OSError) as exc:
+        fail(str(exc))
+    if yes and plan.drop:
+        try:
+            store.remove(LLM_SOURCE, [path.stem for path, _ in plan.drop])
+        except (CacheError, OSError) as exc:
+            fail(str(exc), EXIT_CHECK_FAILED)
+    for path, label in plan.drop:
+        err.print(f"{'deleted' if yes else 'would delete'}: {escape(path.name)}  {escape(label)}",
+                  highlight=False)
+    verb = "deleted" if yes else "would delete"
+    stdout.print(
+        f"{len(plan.graphs)} bundles read; {plan.kept} records referenced; {verb} "
+        f"{len(plan.drop)} ({plan.drop_bytes:,} bytes)"
+        + ("" if yes or not plan.drop else "; run again with --yes to delete them"),
+        highlight=False,
+    )
 
 
 @curate_app.command("record")

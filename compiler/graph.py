@@ -89,7 +89,76 @@ def graph_json(graph: nx.DiGraph) -> bytes:
     nodes = [{"id": n, **graph.nodes[n]} for n in sorted(graph.nodes)]
     edges = [{"source": u, "target": v, **graph.edges[u, v]} for u, v in sorted(graph.edges)]
     data: dict[str, Any] = {"directed": True, "multigraph": False, "nodes": nodes, "edges": edges}
-    return (json.dumps(data, indent=1, sort_keys=True, ensure_ascii=False) + "\n").encode()
+    return (indented_json(data) + "\n").encode()
+
+
+_encode_str = json.encoder.encode_basestring  # what json.dumps(ensure_ascii=False) uses (C)
+
+
+def _float_json(value: float) -> str:
+    if value != value or value in (float("inf"), float("-inf")):
+        return json.dumps(value)
+    return float.__repr__(value)
+
+
+def _dump(value: Any, depth: int, out: list[str]) -> None:
+    if isinstance(value, str):
+        out.append(_encode_str(value))
+    elif value is None or value is True or value is False:
+        out.append("null" if value is None else "true" if value else "false")
+    elif isinstance(value, int):
+        out.append(int.__repr__(value))
+    elif isinstance(value, float):
+        out.append(_float_json(value))
+    elif isinstance(value, dict):
+        if not value:
+            out.append("{}")
+            return
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError("non-string key")
+        inner = "\n" + " " * (depth + 1)
+        sep = "{"
+        for key in sorted(value):
+            item = value[key]
+            kind = type(item)
+            if kind is str:  # the common leaves inline: a call per value is most of the cost
+                out.append(f"{sep}{inner}{_encode_str(key)}: {_encode_str(item)}")
+            elif kind is float and item - item == 0.0:
+                out.append(f"{sep}{inner}{_encode_str(key)}: {float.__repr__(item)}")
+            else:
+                out.append(f"{sep}{inner}{_encode_str(key)}: ")
+                _dump(item, depth + 1, out)
+            sep = ","
+        out.append("\n" + " " * depth + "}")
+    elif isinstance(value, list | tuple):
+        if not value:
+            out.append("[]")
+            return
+        inner = "\n" + " " * (depth + 1)
+        if all(type(item) is str for item in value):
+            out.append("[" + inner + ("," + inner).join(map(_encode_str, value)))
+        else:
+            sep = "["
+            for item in value:
+                out.append(sep + inner)
+                _dump(item, depth + 1, out)
+                sep = ","
+        out.append("\n" + " " * depth + "]")
+    else:
+        raise TypeError(f"not JSON: {type(value).__name__}")
+
+
+def indented_json(data: Any) -> str:
+    """``json.dumps(data, indent=1, sort_keys=True, ensure_ascii=False)``, byte for byte, in a
+    fraction of the time: with ``indent`` json falls back to its pure-Python encoder (seconds
+    for a 10,000-object graph); here only the layout is Python, strings go through json's C
+    escaper. Anything unusual (non-string keys, other types) takes json.dumps itself."""
+    out: list[str] = []
+    try:
+        _dump(data, 0, out)
+    except TypeError:
+        return json.dumps(data, indent=1, sort_keys=True, ensure_ascii=False)
+    return "".join(out)
 
 
 def weight_matrices(

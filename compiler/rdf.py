@@ -38,17 +38,21 @@ def _iri(value: str) -> str:
     return f"<{value}>"
 
 
+_ESCAPE_TABLE = str.maketrans(_ESCAPES)
+
+
 def _literal(text: str, datatype: str | None = None) -> str:
-    escaped = "".join(_ESCAPES.get(c, c) for c in text)
+    escaped = text.translate(_ESCAPE_TABLE)
     return f'"{escaped}"' + (f"^^<{datatype}>" if datatype else "")
 
 
 def graph_triples(graph: nx.DiGraph, kb_name: str) -> list[tuple[str, str, str]]:
     """Every triple as (subject, predicate, object) in N-Triples term syntax."""
     triples: list[tuple[str, str, str]] = []
+    iris = {node: _iri(node_iri(kb_name, node)) for node in graph.nodes}  # quote() once per node
     for node in graph.nodes:
         data = graph.nodes[node]
-        uri = _iri(node_iri(kb_name, node))
+        uri = iris[node]
         triples.append((uri, _iri(RDF_TYPE), _iri(CRAFT + KINDS[data["kind"]])))
         triples.append((uri, _iri(RDFS_LABEL), _literal(str(data["name"]))))
         for key in ("gloss", "definition"):
@@ -56,7 +60,7 @@ def graph_triples(graph: nx.DiGraph, kb_name: str) -> list[tuple[str, str, str]]
                 triples.append((uri, _iri(RDFS_COMMENT), _literal(str(data[key]))))
     for u, v in graph.edges:
         data = graph.edges[u, v]
-        su, sv = _iri(node_iri(kb_name, u)), _iri(node_iri(kb_name, v))
+        su, sv = iris[u], iris[v]
         predicate = "hasProperty" if u.startswith("verb:") else "propertyOf"
         triples.append((su, _iri(CRAFT + predicate), sv))
         digest = hashlib.sha256(f"{u}|{v}".encode()).hexdigest()[:16]

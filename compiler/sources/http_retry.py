@@ -128,14 +128,21 @@ def send(
     headers: Mapping[str, str] | None = None,
     key_env: str | None = None,
     secrets: Sequence[str] = (),
+    content: bytes | None = None,
+    files: Mapping[str, tuple[str, bytes, str]] | None = None,
+    data: Mapping[str, str] | None = None,
 ) -> httpx.Response:
     """One request with failures mapped to ``TransportError`` / ``FatalTransportError``.
 
     The body is read completely here, so a connection cut mid-body surfaces as a retryable
-    error instead of a half-parsed answer.
+    error instead of a half-parsed answer. ``content`` sends raw bytes; ``files`` + ``data``
+    a multipart form (file uploads of the batch APIs).
     """
     try:
-        response = client.request(method, url, json=json_body, params=params, headers=headers)
+        response = client.request(
+            method, url, json=json_body, params=params, headers=headers, content=content,
+            files=files, data=data,
+        )
     except httpx.UnsupportedProtocol as exc:
         raise FatalTransportError(f"{what}: unsupported URL {url!r}: {exc}") from None
     except httpx.TimeoutException as exc:

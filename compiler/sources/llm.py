@@ -9,6 +9,8 @@ Nothing invalid is ever written to the cache.
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -65,6 +67,41 @@ class PromptCall:
     variables: dict[str, Any]
 
 
+class RateGate:
+    """A shared pause for every worker of one source, set by a server's 429 Retry-After.
+
+    When one worker is told to wait, the others must not keep hitting the rate-limited
+    endpoint: ``hold`` moves the shared resume time forward (never back), and ``wait`` makes
+    every *other* worker sleep until then before its next call. The worker that received the
+    429 already waits in its own backoff (at least the Retry-After), so it skips the gate; with
+    one worker the gate therefore changes nothing.
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._resume_at = 0.0
+        self._owner: int | None = None
+
+    def hold(self, seconds: float) -> None:
+        with self._lock:
+            until = self._clock() + seconds
+            if until > self._resume_at:
+                self._resume_at = until
+                self._owner = threading.get_ident()
+
+    def wait(self, sleep: Callable[[float], None]) -> float:
+        """Sleep until the shared resume time (unless this thread set it); returns the wait."""
+        with self._lock:
+            if self._owner == threading.get_ident():
+                return 0.0
+            remaining = self._resume_at - self._clock()
+        if remaining <= 0:
+            return 0.0
+        sleep(remaining)
+        return remaining
+
+
 @dataclass
 class LLMSource:
     """Answers prompts from the record cache, and from a live transport when one is given.
@@ -83,6 +120,7 @@ class LLMSource:
     max_concurrency: int = 4
     backoff_s: float = 0.5
     sleep: Callable[[float], None] | None = None
+    gate: RateGate = field(default_factory=RateGate, repr=False, compare=False)
 
     def request_for(self, call: PromptCall) -> RecordRequest:
         return RecordRequest(
@@ -139,12 +177,15 @@ class LLMSource:
         model = call.template.payload_model
         failures: list[str] = []
         for attempt in range(1, self.max_attempts + 1):
+            self.gate.wait(self.sleep or time.sleep)  # another worker was told to back off
             try:
                 raw = self.transport.complete(request)
             except FatalTransportError:
                 raise
             except TransportError as exc:
                 failures.append(f"attempt {attempt}: {exc}")
+                if exc.retry_after is not None:
+                    self.gate.hold(exc.retry_after)
                 self._backoff(attempt, exc.retry_after)
                 continue
             try:
@@ -171,8 +212,6 @@ class LLMSource:
     def _backoff(self, attempt: int, retry_after: float | None = None) -> None:
         if attempt >= self.max_attempts:
             return
-        import time
-
         delay = self.backoff_s * 2 ** (attempt - 1)
         if retry_after is not None:
             delay = max(delay, retry_after)

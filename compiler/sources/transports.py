@@ -88,10 +88,20 @@ class _HTTPTransport:
 
 
 class OpenAITransport(_HTTPTransport):
-    """``POST {base_url}/chat/completions`` with a ``json_schema`` response format."""
+    """``POST {base_url}/chat/completions`` with a ``json_schema`` response format.
+
+    llama-cpp-python's server (``python -m llama_cpp.server``, 0.3.x) rejects OpenAI's
+    ``{"type": "json_schema", ...}`` (its error handler answers HTTP 500 with the validation
+    error naming ``response_format``; FastAPI alone would say 422) and takes the schema as
+    ``{"type": "json_object", "schema": ...}`` instead, compiled into a grammar. On such a
+    rejection the transport resends once in that form and keeps using it; the record key does
+    not depend on the wire form, so records stay the same either way.
+    """
 
     provider = "openai"
     key_env = OPENAI_KEY_ENV
+    #: ``json_schema`` (OpenAI, vLLM, Ollama, llama.cpp's C++ server) or ``json_object``.
+    schema_format = "json_schema"
 
     def _auth_headers(self, api_key: str | None) -> dict[str, str]:
         return {"Authorization": f"Bearer {api_key}"} if api_key else {}
@@ -103,7 +113,11 @@ class OpenAITransport(_HTTPTransport):
             "messages": [{"role": m.role, "content": m.content} for m in request.messages],
             **request.params,
         }
-        if request.response_schema:
+        if request.response_schema and self.schema_format == "json_object":
+            body["response_format"] = {
+                "type": "json_object", "schema": grammar_schema(request.response_schema)
+            }
+        elif request.response_schema:
             body["response_format"] = {
                 "type": "json_schema",
                 "json_schema": {
@@ -118,8 +132,56 @@ class OpenAITransport(_HTTPTransport):
 
     def complete(self, request: RecordRequest) -> str:
         what = f"openai {request.model} {request.prompt} subject={request.subject!r}"
-        data = self._post(f"{self.base_url}/chat/completions", self.request_body(request), what)
+        url = f"{self.base_url}/chat/completions"
+        try:
+            data = self._post(url, self.request_body(request), what)
+        except (FatalTransportError, TransportError) as exc:
+            if not (request.response_schema and self.schema_format == "json_schema"
+                    and rejects_json_schema(str(exc))):
+                raise
+            self.schema_format = "json_object"
+            try:
+                data = self._post(url, self.request_body(request), what)
+            except (FatalTransportError, TransportError):
+                self.schema_format = "json_schema"
+                raise exc from None
         return openai_answer_text(data, what)
+
+
+#: A weight in [0, 1] as a grammar can bound it: llama.cpp's schema-to-grammar converter
+#: ignores ``minimum``/``maximum`` on numbers, so a schema sent in the ``json_object`` form
+#: enumerates the weights in steps of 0.05 instead (the answer is still validated by pydantic).
+UNIT_WEIGHTS = tuple(round(i * 0.05, 2) for i in range(21))
+#: Names (strings of at most this many characters: verbs, objects, properties) are sent to a
+#: grammar as the lowercase phrases every prompt asks for; a small model otherwise copies the
+#: "..." placeholder of the prompt's example answer. Longer strings (definitions) stay free.
+NAME_MAX_LENGTH = 64
+
+
+def grammar_schema(schema: Any) -> Any:
+    """``schema`` narrowed for a grammar-constrained server (``json_object`` form): numbers in
+    [0, 1] as an enum of ``UNIT_WEIGHTS``, short names as lowercase phrases. Whatever the
+    narrowed schema admits, the original admits too."""
+    if isinstance(schema, list):
+        return [grammar_schema(item) for item in schema]
+    if not isinstance(schema, Mapping):
+        return schema
+    out = {key: grammar_schema(value) for key, value in schema.items()}
+    if out.get("type") == "number" and out.get("minimum") == 0 and out.get("maximum") == 1:
+        out["enum"] = list(UNIT_WEIGHTS)
+    longest = out.get("maxLength")
+    if (out.get("type") == "string" and "pattern" not in out and isinstance(longest, int)
+            and out.get("minLength", 0) >= 1 and longest <= NAME_MAX_LENGTH):
+        out["pattern"] = f"^[a-z][a-z0-9 '-]{{0,{longest - 1}}}$"
+    return out
+
+
+def rejects_json_schema(message: str) -> bool:
+    """An HTTP 400/422/500 naming ``response_format`` and ``json_schema``: the server wants the
+    schema in another form (llama-cpp-python: ``json_object`` + ``schema``)."""
+    status = re.search(r"HTTP (\d{3})\b", message)
+    return (status is not None and status.group(1) in {"400", "422", "500"}
+            and "response_format" in message and "json_schema" in message)
 
 
 class GeminiTransport(_HTTPTransport):

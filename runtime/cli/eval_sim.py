@@ -37,6 +37,8 @@ def eval_sim(
     threads: Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")] = 1,
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",
+    jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
+                                                  "to --jobs 1).")] = 1,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from craft_e.paths import KB_DIR
@@ -58,7 +60,7 @@ def eval_sim(
     try:
         with ProgressBar() as bar:
             report = evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
-                                  max_pairs=max_pairs, settings=settings, progress=bar)
+                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs)
     except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError) as exc:
         fail(str(exc))
     err.print(f"{report.config['episodes']} episodes in {time.perf_counter() - start:.0f} s", highlight=False)

@@ -32,6 +32,8 @@ def eval_static(
     threads: Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")] = 1,
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",
+    jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
+                                                  "to --jobs 1).")] = 1,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from craft_e.paths import KB_DIR, REPO_ROOT
@@ -56,7 +58,7 @@ def eval_static(
             report = evaluate_static(labels_path, backends=split_names(grasp) or ["grconvnet"],
                                      layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
                                      noise=levels, threads=threads,
-                                     settings=settings, progress=bar)
+                                     settings=settings, progress=bar, jobs=jobs)
     except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError,
             ValueError, RuntimeError) as exc:
         fail(str(exc))

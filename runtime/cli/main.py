@@ -20,6 +20,7 @@ from . import (
     eval_imagenet,
     eval_kb,
     eval_open_world,
+    eval_recognition,
     eval_sim,
     eval_static,
     eval_zhu,
@@ -50,6 +51,7 @@ eval_app.command("static")(eval_static.eval_static)
 eval_app.command("zhu")(eval_zhu.eval_zhu)
 eval_app.command("kb")(eval_kb.eval_kb)
 eval_app.command("open-world")(eval_open_world.eval_open_world)
+eval_app.command("recognition")(eval_recognition.eval_recognition)
 robustness_app.command("imagenet")(robustness.robustness_imagenet)
 sim_app.command("demo")(sim.demo)
 

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from craft_e.paths import CACHE_DIR
-from craft_e.runtime.encoders.image import FloatArray, UInt8Image, resize_center_crop
+from craft_e.runtime.encoders.image import FloatArray, UInt8Image, resize_center_crop, resize_fit
 from craft_e.runtime.encoders.text import (
     MINILM_DIM,
     MINILM_ID,
@@ -38,6 +38,7 @@ from craft_e.runtime.encoders.text import (
 CONSE_TOP_K = 10
 ENCODER_CACHE_DIR = CACHE_DIR / "encoders"
 CLASSES_FILE = "imagenet_classes.txt"
+PREPROCESS = ("center", "fit")
 
 
 @cache
@@ -132,6 +133,8 @@ class ConSEImageEncoder:
         weights: Path | None = None,
         text_encoder: Any | None = None,
         threads: int | None = None,
+        preprocess: str = "center",
+        tta: int = 1,
     ) -> None:
         import torch
 
@@ -142,16 +145,29 @@ class ConSEImageEncoder:
 
         if top_k < 1:
             raise ValueError(f"top_k must be >= 1, got {top_k}")
+        if preprocess not in PREPROCESS:
+            raise ValueError(f"preprocess must be one of {', '.join(PREPROCESS)}, got {preprocess!r}")
+        if tta not in (1, 2):
+            raise ValueError(f"tta must be 1 (none) or 2 (+ mirror image), got {tta}")
         self.top_k = top_k
+        self.preprocess = preprocess
+        self.tta = tta
         self.threads = threads  # torch intra-op threads during forward passes (None: torch's default)
         self._torch = torch
         self.classifier = load_efficientnet_lite0(weights)
         self.class_names = imagenet_class_names()
         self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder)  # [1000, d]
-        self.id = f"conse-k{top_k}:efficientnet-lite0@{EFFICIENTNET_LITE0_SHA256[:12]}+{MINILM_ID}@{MINILM_SHA256[:12]}"
+        variant = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
+        self.id = (f"conse-k{top_k}{variant}:efficientnet-lite0@{EFFICIENTNET_LITE0_SHA256[:12]}"
+                   f"+{MINILM_ID}@{MINILM_SHA256[:12]}")
 
     def class_probabilities(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> npt.NDArray[np.float32]:
-        """ImageNet softmax ``[N, 1000]`` for RGB crops of any size (resize 256, centre 224)."""
+        """ImageNet softmax ``[N, 1000]`` for RGB crops of any size.
+
+        ``preprocess`` ``center``: short side to 256, centre 224 (the ImageNet evaluation
+        transform); ``fit``: the whole crop resized to 224 x 224 (ROI crops are already square
+        with context, so a centre crop would only cut the object). ``tta`` 2 averages the
+        probabilities of the crop and its mirror image (one batch of 2N)."""
         torch = self._torch
         out = np.zeros((len(crops), len(self.class_names)), dtype=np.float32)
         previous = torch.get_num_threads()
@@ -159,11 +175,16 @@ class ConSEImageEncoder:
             torch.set_num_threads(self.threads)
         try:
             for start in range(0, len(crops), max(1, batch_size)):
-                chunk = [resize_center_crop(c) for c in crops[start : start + batch_size]]
+                prep = resize_center_crop if self.preprocess == "center" else resize_fit
+                chunk = [prep(c) for c in crops[start : start + batch_size]]
                 x = torch.from_numpy(np.stack(chunk)).permute(0, 3, 1, 2).float()  # [B, 3, 224, 224]
                 x = x / 127.5 - 1.0  # [-1, 1], the range the weights expect
+                if self.tta == 2:
+                    x = torch.cat([x, x.flip(3)])  # [2B, 3, 224, 224]: + mirror images
                 with torch.inference_mode():
-                    probs = self.classifier(x).softmax(dim=-1)  # [B, 1000]
+                    probs = self.classifier(x).softmax(dim=-1)  # [B or 2B, 1000]
+                if self.tta == 2:
+                    probs = (probs[: len(chunk)] + probs[len(chunk) :]) / 2
                 out[start : start + len(chunk)] = probs.numpy()
         finally:
             if self.threads:

@@ -91,6 +91,15 @@ def resize_center_crop(
     return np.asarray(img.crop((left, top, left + size, top + size)), dtype=np.uint8)  # [S, S, 3]
 
 
+def resize_fit(crop: UInt8Image, size: int = 224) -> UInt8Image:
+    """The whole crop resized to ``size`` x ``size`` (bicubic): for square ROI crops that already
+    carry their context, where a centre crop would cut the object's ends off."""
+    from PIL import Image
+
+    img = Image.fromarray(as_rgb_uint8(crop)).resize((size, size), Image.Resampling.BICUBIC)
+    return np.asarray(img, dtype=np.uint8)  # [S, S, 3]
+
+
 def load_image(path: str) -> UInt8Image:
     """An image file as ``HxWx3`` uint8 RGB."""
     from PIL import Image

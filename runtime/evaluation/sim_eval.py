@@ -52,6 +52,7 @@ from .methods import MethodSpec, build_grounders, load_methods, select_methods
 
 if TYPE_CHECKING:
     from craft_e.runtime.encoders.image import ImageEncoder
+    from craft_e.runtime.grounding.grounder import Grounder
     from craft_e.runtime.sim.pipeline import EpisodeResult, PipelineConfig
 
 DISTRACTORS = 4
@@ -280,10 +281,11 @@ def make_episode_specs(
 
 
 def default_encoder(threads: int = 1) -> ImageEncoder:
-    """The ConSE image encoder with a fixed torch thread count."""
+    """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
+    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md)."""
     from craft_e.runtime.encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads)
+    return ConSEImageEncoder(threads=threads, preprocess="fit")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -446,6 +448,30 @@ class SimReport:
 ProgressFn = Callable[[int, int, dict[str, Any]], None]
 
 
+def _worker_context(
+    runnable_specs: Sequence[MethodSpec], threads: int, settings: GroundingSettings,
+) -> tuple[dict[str, Grounder], ImageEncoder]:
+    """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
+    from craft_e.runtime.sim.pipeline import sim_vocabulary
+
+    enc = default_encoder(threads)
+    runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
+    return build_grounders(runnable, settings, sim_vocabulary()), enc
+
+
+def _run_one(
+    cfg: PipelineConfig, env_cfg: EnvConfig, ctx: tuple[dict[str, Grounder], ImageEncoder], spec: EpisodeSpec,
+) -> dict[str, Any]:
+    """One episode in a fresh pybullet client (nothing carries over), as its JSON record."""
+    from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.pipeline import run_episode
+
+    grounders, enc = ctx
+    with SimEnv(env_cfg) as env:
+        result = run_episode(env, spec.scene, grounders, enc, cfg)
+    return episode_record(spec, result, cfg.detect_iou)
+
+
 def evaluate_sim(
     labels_path: Path,
     *,
@@ -458,17 +484,24 @@ def evaluate_sim(
     env_config: EnvConfig | None = None,
     settings: GroundingSettings | None = None,
     progress: ProgressFn | None = None,
+    jobs: int = 1,
 ) -> SimReport:
     """Run every episode once and every method on it; see the module docstring.
 
     ``config`` is a ``sim.pipeline.PipelineConfig`` (default: GR-ConvNet on predicted ROIs);
-    ``progress(done, total, record)`` is called after each episode.
+    ``progress(done, total, record)`` is called after each episode. ``jobs`` > 1 runs episodes
+    in that many worker processes (``evaluation.parallel``): the report is byte-identical to
+    ``jobs=1``. Workers build the default image encoder, so ``encoder`` must then be None.
     """
-    from craft_e.runtime.sim.env import SimEnv
-    from craft_e.runtime.sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
+    from functools import partial
+
+    from craft_e.runtime.evaluation.parallel import ordered_map
+    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
     if layouts < 1:
         raise ValueError(f"layouts must be >= 1, got {layouts}")
+    if jobs > 1 and encoder is not None:
+        raise ValueError("jobs > 1 builds the default image encoder in every worker; pass encoder=None")
     cfg = config or PipelineConfig()
     env_cfg = env_config or EnvConfig()
     labels = load_sim_labels(labels_path)
@@ -481,12 +514,12 @@ def evaluate_sim(
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:
-        for i, spec in enumerate(specs):
-            with SimEnv(env_cfg) as env:  # a fresh client per episode: nothing carries over
-                result = run_episode(env, spec.scene, grounders, enc, cfg)
-            records.append(episode_record(spec, result, cfg.detect_iou))
+        build = partial(_worker_context, [m for m, _ in runnable], cfg.torch_threads, settings)
+        for record in ordered_map(partial(_run_one, cfg, env_cfg), specs, jobs=jobs, build=build,
+                                  context=(grounders, enc)):
+            records.append(record)
             if progress is not None:
-                progress(i + 1, len(specs), records[-1])
+                progress(len(records), len(specs), record)
     results: list[MethodResult] = []
     for spec_m, _ in runnable:
         grounder = grounders[spec_m.name]

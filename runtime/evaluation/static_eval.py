@@ -58,7 +58,7 @@ from .methods import MethodSpec, build_grounders, load_methods, select_methods
 
 if TYPE_CHECKING:
     from craft_e.runtime.encoders.image import ImageEncoder
-    from craft_e.runtime.grounding.grounder import Grounding
+    from craft_e.runtime.grounding.grounder import Grounder, Grounding
     from craft_e.runtime.perception.observation import Observation
 
 BoolMask = npt.NDArray[np.bool_]
@@ -239,7 +239,7 @@ def setting_ids(backends: Sequence[str]) -> list[str]:
 
 def render_scene(
     spec: EpisodeSpec, backends: Sequence[str], encoder: ImageEncoder, env_config: EnvConfig,
-    gt_config: GTGraspConfig | None = None, torch_threads_n: int = 1,
+    gt_config: GTGraspConfig | None = None, torch_threads_n: int = 1, rgb_scale: int = 2,
 ) -> StaticScene:
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
     from craft_e.runtime.encoders.image import crop_box
@@ -252,6 +252,7 @@ def render_scene(
     with SimEnv(env_config) as env:
         scene = env.reset(spec.scene)
         obs = env.capture()
+        sharp = env.capture_rgb(rgb_scale)  # crops for the encoder, as in sim.pipeline
         truth = raster_order(gt_rois(obs, scene))
         bodies = [o.body_id for o in scene.objects]
         rects = {b: gt_grasp_rects(scene, obs, b, gt_config) for b in {r.label for r in truth}
@@ -262,7 +263,7 @@ def render_scene(
     owners = [majority_body(obs, r.mask, bodies) for r in predicted]
     with torch_threads(torch_threads_n):
         boxes = [r.box_xywh for r in truth] + [r.box_xywh for r in predicted]
-        emb = (encoder.embed_images([crop_box(obs.rgb, b) for b in boxes]) if boxes
+        emb = (encoder.embed_images([crop_box(sharp, tuple(v * rgb_scale for v in b)) for b in boxes]) if boxes
                else np.zeros((0, encoder.dim), dtype=np.float32))  # [N, d]
         net = {b: [tuple(predict_grasps(b, obs.rgb, obs.depth, r.mask, intrinsics=obs.intrinsics))
                    for r in predicted] for b in backends}
@@ -431,13 +432,23 @@ def evaluate_static(
     threads: int = 1,
     settings: GroundingSettings | None = None,
     progress: ProgressFn | None = None,
+    jobs: int = 1,
 ) -> StaticReport:
-    """Render every scene once, then score every method in every setting and noise level."""
+    """Render every scene once, then score every method in every setting and noise level.
+
+    ``jobs`` > 1 renders and scores scenes in that many worker processes, with a report
+    byte-identical to ``jobs=1`` (``evaluation.parallel``); ``encoder`` must then be None."""
+    from functools import partial
+
+    from craft_e.runtime.evaluation.parallel import ordered_map
+    from craft_e.runtime.evaluation.sim_eval import _worker_context
+
     bad = [b for b in backends if b not in GRASP_BACKENDS]
     if bad:
         raise ValueError(f"unknown grasp backend(s) {', '.join(bad)}; choose from {', '.join(GRASP_BACKENDS)}")
     levels = [NoiseLevel(), *(n for n in noise if not n.clean)]
-    rb = _robustness() if len(levels) > 1 else None  # fail before rendering anything
+    if len(levels) > 1:
+        _robustness()  # fail before rendering anything
     env_cfg = env_config or EnvConfig()
     labels = load_sim_labels(labels_path)
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
@@ -451,29 +462,14 @@ def evaluate_static(
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     setting_names = setting_ids(backends)
     episodes: list[dict[str, Any]] = []
-    for i, spec in enumerate(specs if grounders else []):
-        scene = render_scene(spec, backends, enc, env_cfg, gt_config, threads)
-        record: dict[str, Any] = {"id": spec.id, "verb": spec.verb, "object": spec.object,
-                                  "layout": spec.layout, "target": spec.scene.target,
-                                  "distractors": list(spec.scene.distractors), "scene_seed": spec.scene.seed,
-                                  "target_box": list(scene.target_box) if scene.target_box else None,
-                                  "target_gt_grasps": len(scene.target_rects), "levels": {}}
-        for li, level in enumerate(levels):
-            per_setting: dict[str, Any] = {}
-            for setting in setting_names:
-                rng = (rb.noise_rng(seed, "static", float(li), f"{spec.id}|{setting}|{level.label}".encode())
-                       if rb is not None and not level.clean else np.random.default_rng(0))
-                rois = _perturbed(scene.settings[setting], level, rng, scene.rgb, enc)
-                g_rois = _grounding_rois(rois)
-                per_setting[setting] = {
-                    "target_grasp": target_grasp_ok(scene, rois),
-                    "methods": {name: score_choice(scene, rois, grounder.ground(spec.verb, g_rois))
-                                for name, grounder in grounders.items()},
-                }
-            record["levels"][level.label] = per_setting
+    if jobs > 1 and encoder is not None:
+        raise ValueError("jobs > 1 builds the default image encoder in every worker; pass encoder=None")
+    run = partial(_static_record, backends, env_cfg, gt_config, threads, levels, setting_names, seed)
+    build = partial(_worker_context, [m for m, _ in runnable], threads, settings)
+    for record in ordered_map(run, specs if grounders else [], jobs=jobs, build=build, context=(grounders, enc)):
         episodes.append(record)
         if progress is not None:
-            progress(i + 1, len(specs), record)
+            progress(len(episodes), len(specs), record)
     rows: dict[str, dict[str, list[MethodResult]]] = {}
     for level in levels:
         rows[level.label] = {}
@@ -496,6 +492,36 @@ def evaluate_static(
               "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
               "gt_grasps": "oracle section rule, 1 cm along the long axis; every 15° for round footprints"}
     return StaticReport(rows, skipped, episodes, config)
+
+
+def _static_record(
+    backends: Sequence[str], env_cfg: EnvConfig, gt_config: GTGraspConfig | None, threads: int,
+    levels: Sequence[NoiseLevel], settings: Sequence[str], seed: int,
+    ctx: tuple[dict[str, Grounder], ImageEncoder], spec: EpisodeSpec,
+) -> dict[str, Any]:
+    """Render one scene and score every method in every setting and noise level."""
+    grounders, enc = ctx
+    rb = _robustness() if len(levels) > 1 else None
+    scene = render_scene(spec, backends, enc, env_cfg, gt_config, threads)
+    record: dict[str, Any] = {"id": spec.id, "verb": spec.verb, "object": spec.object,
+                              "layout": spec.layout, "target": spec.scene.target,
+                              "distractors": list(spec.scene.distractors), "scene_seed": spec.scene.seed,
+                              "target_box": list(scene.target_box) if scene.target_box else None,
+                              "target_gt_grasps": len(scene.target_rects), "levels": {}}
+    for li, level in enumerate(levels):
+        per_setting: dict[str, Any] = {}
+        for setting in settings:
+            rng = (rb.noise_rng(seed, "static", float(li), f"{spec.id}|{setting}|{level.label}".encode())
+                   if rb is not None and not level.clean else np.random.default_rng(0))
+            rois = _perturbed(scene.settings[setting], level, rng, scene.rgb, enc)
+            g_rois = _grounding_rois(rois)
+            per_setting[setting] = {
+                "target_grasp": target_grasp_ok(scene, rois),
+                "methods": {name: score_choice(scene, rois, grounder.ground(spec.verb, g_rois))
+                            for name, grounder in grounders.items()},
+            }
+        record["levels"][level.label] = per_setting
+    return record
 
 
 def _grounding_rois(rois: list[StaticROI]) -> list[ROI]:

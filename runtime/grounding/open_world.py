@@ -99,6 +99,23 @@ def _knn(sims: F64, k: int, temperature: float) -> tuple[npt.NDArray[np.intp], F
     return idx, a / a.sum(axis=1, keepdims=True)
 
 
+def _top_sorted(sims: F64, k: int) -> npt.NDArray[np.intp]:
+    """The first ``k`` columns of ``argsort(-sims, axis=1, kind="stable")`` without sorting
+    whole rows: a partition, then (value, index) order; rows with ties at the k-th value take
+    the full stable sort, so the result is exactly the stable argsort's prefix."""
+    if k >= sims.shape[1]:
+        full: npt.NDArray[np.intp] = np.argsort(-sims, axis=1, kind="stable")
+        return full
+    part = np.argpartition(-sims, k - 1, axis=1)[:, :k]
+    vals = np.take_along_axis(sims, part, axis=1)
+    order = np.lexsort((part, -vals), axis=1)
+    out: npt.NDArray[np.intp] = np.take_along_axis(part, order, axis=1)
+    tied = np.flatnonzero((sims >= vals.min(axis=1, keepdims=True)).sum(axis=1) > k)
+    for r in tied.tolist():
+        out[r] = np.argsort(-sims[r], kind="stable")[:k]
+    return out
+
+
 def _predict(sims: F64, weight: F64, link: F64, k: int, temperature: float) -> tuple[F64, F64, npt.NDArray[np.intp], F64]:
     """``q_w``, ``q_l`` ``[N, P]`` from neighbour cosines ``[N, K]`` and the pool's ``[P, K]``."""
     idx, a = _knn(sims, k, temperature)
@@ -144,26 +161,39 @@ def fit_open_world(
     property vector and its own; the confidence curve maps the nearest neighbour's cosine to
     that cosine, made monotone. Numbers are rounded to 4 decimals so rebuilds are byte-stable.
     """
+    from scipy.sparse import csr_matrix
+
     emb = _unit(object_embeddings).astype(np.float64)  # [O, d]
-    weight, link = linked_weights(np.asarray(w_po, dtype=np.float64), tau)  # [P, O]
+    weight, _ = linked_weights(np.asarray(w_po, dtype=np.float64), tau)  # [P, O]
     n_obj = emb.shape[0]
     has = weight.sum(axis=0) > 0  # objects with at least one property
     fold = np.random.default_rng(seed).permutation(n_obj) % CV_FOLDS
-    sims = emb @ emb.T  # [O, O]
+    # Each fold's nearest max(K_GRID) training objects, found once (never the [O, O] cosine
+    # matrix: 800 MB at 10,000 objects); every (k, T) then reads a prefix of them.
+    weight_t = np.ascontiguousarray(weight.T)  # [O, P]
+    s1 = np.zeros(n_obj)
+    folds: list[tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], F64]] = []
+    for f in range(CV_FOLDS):
+        test, train = np.flatnonzero(fold == f), np.flatnonzero(fold != f)
+        if len(test) == 0 or len(train) == 0:
+            continue
+        sub = emb[test] @ emb[train].T  # [n_test, n_train]
+        idx = _top_sorted(sub, max(K_GRID))
+        folds.append((test, train[idx], np.take_along_axis(sub, idx, axis=1)))
+        s1[test] = sub.max(axis=1)
     grid: list[dict[str, float]] = []
     best: tuple[float, int, float] = (-1.0, K_GRID[0], T_GRID[0])
     best_pred: tuple[F64, F64] | None = None
     for k in K_GRID:
         for t in T_GRID:
             q_w = np.zeros((n_obj, weight.shape[0]))
-            s1 = np.zeros(n_obj)
-            for f in range(CV_FOLDS):
-                test, train = np.flatnonzero(fold == f), np.flatnonzero(fold != f)
-                if len(test) == 0 or len(train) == 0:
-                    continue
-                sub = sims[np.ix_(test, train)]
-                q_w[test] = _predict(sub, weight[:, train], link[:, train], k, t)[0]
-                s1[test] = sub.max(axis=1)
+            for test, neighbours, near in folds:
+                kk = min(k, neighbours.shape[1])
+                a = np.exp((near[:, :kk] - near[:, :1]) / t)
+                a = a / a.sum(axis=1, keepdims=True)  # [n_test, kk] as _knn weights them
+                rows = np.arange(0, a.size + 1, kk)
+                mix = csr_matrix((a.ravel(), neighbours[:, :kk].ravel(), rows), shape=(len(test), n_obj))
+                q_w[test] = mix @ weight_t  # sum_i a_i w_po[:, o_i], as _predict
             quality = _cosine_rows(q_w, weight.T)  # [O]
             score = float(quality[has].mean()) if has.any() else 0.0
             grid.append({"k": k, "temperature": t, "cv_quality": round(score, 4)})

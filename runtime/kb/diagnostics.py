@@ -96,12 +96,16 @@ def discrimination_diagnostics(
     cells = max(e.size, 1)
     in_top = np.zeros(n_o, dtype=np.float64)  # [O] verbs whose top-k holds the object
     margins: dict[str, float] = {}
+    # ranked_objects' order (energy, then name) as one lexsort per verb: O(V O log O) in C
+    # rather than a Python sort (seconds at 1,000 x 10,000); only two ranks are read.
+    name_rank = np.empty(n_o, dtype=np.int64)
+    name_rank[sorted(range(n_o), key=objects.__getitem__)] = np.arange(n_o)
     for v, verb in enumerate(verbs):
         in_top += top_k_credit(e[v], top_k)
-        order = ranked_objects(e[v], objects)
-        if order:
-            last = order[min(margin_rank, len(order)) - 1]
-            margins[verb] = _r(e[v, last] - e[v, order[0]])
+        if n_o:
+            order = np.lexsort((name_rank, e[v]))
+            last = int(order[min(margin_rank, n_o) - 1])
+            margins[verb] = _r(e[v, last] - e[v, int(order[0])])
     shares = [_r(c / max(n_v, 1)) for c in in_top.tolist()]  # [O]
     hub_order = sorted(range(n_o), key=lambda i: (-shares[i], objects[i]))
     hubs = [{"object": objects[i], "top_k_share": shares[i]} for i in hub_order[:n_hubs] if shares[i] > 0]

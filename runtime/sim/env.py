@@ -13,10 +13,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import TracebackType
 
+import numpy as np
+import numpy.typing as npt
 import pybullet as p
 
 from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.camera import Camera
+from craft_e.runtime.sim.camera import Camera, render
 from craft_e.runtime.sim.gripper import GripperConfig
 from craft_e.runtime.sim.robot import ArmConfig, CR3Robot
 from craft_e.runtime.sim.scene import Scene, SceneSpec, TableLayout, capture, make_scene
@@ -113,3 +115,10 @@ class SimEnv:
 
     def capture(self) -> Observation:
         return capture(self.scene)
+
+    def capture_rgb(self, scale: int) -> npt.NDArray[np.uint8]:
+        """The scene camera's colour image at ``scale`` x its resolution (``[sH, sW, 3]``), as a
+        higher-resolution colour sensor beside the depth camera would give."""
+        if scale == 1:
+            return capture(self.scene).rgb
+        return render(self.client, self.scene.camera.scaled(scale)).rgb

@@ -135,6 +135,7 @@ class PipelineConfig:
     ik_filter: bool = True  # keep only grasps whose whole pick is IK-feasible
     detect_iou: float = 0.5
     torch_threads: int = 1  # fixed, for speed on small hosts and bit-identical results
+    rgb_scale: int = 2  # crops come from a colour image this many times sharper (docs/recognition.md)
     fingers: FingerGeometry = field(default_factory=FingerGeometry)
     pick: PickConfig = field(default_factory=PickConfig)
     segment: SegmentConfig = field(default_factory=SegmentConfig)
@@ -155,6 +156,7 @@ class PipelineConfig:
             "ik_filter": self.ik_filter,
             "detect_iou": self.detect_iou,
             "torch_threads": self.torch_threads,
+            "rgb_scale": self.rgb_scale,
         }
 
 
@@ -436,7 +438,9 @@ def perceive(
     with torch_threads(config.torch_threads):
         raw = [_raw_candidates(scene, obs, roi, body, config)
                for roi, body in zip(rois, owners, strict=True)]
-        crops = [crop_box(obs.rgb, roi.box_xywh) for roi in rois]
+        k = config.rgb_scale
+        sharp = env.capture_rgb(k) if k > 1 else obs.rgb
+        crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
         embeddings = encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         surfaces = _Surfaces(world[roi.mask & raised], table_z)

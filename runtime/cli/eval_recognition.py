@@ -1,0 +1,31 @@
+"""``craft eval recognition``: how well the image encoder recognises the rendered sim assets."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from .common import err, note
+from .eval_sim import ProgressBar
+
+
+def eval_recognition(
+    views: Annotated[int, typer.Option(min=1, help="Renders per asset (seeded pose on the table).")] = 3,
+    seed: Annotated[int, typer.Option(help="Seed of the poses.")] = 0,
+    threads: Annotated[int, typer.Option(min=1, help="Torch threads of the image encoder.")] = 1,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the table (and per-asset hits) as JSON.")] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown table.")] = None,
+) -> None:
+    """Recognition top-1/top-5 of the 74 rendered sim assets under each perception setting."""
+    from ..evaluation.common import emit_report
+    from ..evaluation.recognition import evaluate_recognition
+
+    start = time.perf_counter()
+    with ProgressBar() as bar:
+        report = evaluate_recognition(views, seed, threads=threads,
+                                      progress=lambda d, t: bar(d, t, {"id": "rendering"}))
+    err.print(f"{report.config['images']} images in {time.perf_counter() - start:.0f} s", highlight=False)
+    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
