@@ -29,6 +29,11 @@ SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"], EnergyForm, bool]] 
     "craft-e-v1": ("llm", "v1", "sum-tanh", False),
     "direct-llm": ("direct", "v2", "sum-tanh", False),
     "conceptnet": ("conceptnet", "v2", "sum-tanh", False),
+    "local-llm": ("llm", "v1", "sum-tanh", False),
+}
+#: Bundles replayed from a live model's records: name -> (provider, model, verbs, objects file).
+LIVE_RECORDS = {
+    "local-llm": ("openai", "SmolLM2-135M-Instruct.Q4_1", "zhu_verbs.txt", "zhu_objects.txt"),
 }
 
 
@@ -45,12 +50,18 @@ def cold_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.mark.parametrize("name", list(SHIPPED))
 def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp_path: Path) -> None:
     mode, prompts, form, property_pass = SHIPPED[name]
+    default_objects = "union_objects.txt" if name in UNION_ONLY else "default_objects.txt"
+    provider, model, verbs, objects = LIVE_RECORDS.get(
+        name, ("curated", "craft-e-curators", "union_verbs.txt", default_objects)
+    )
     config = BuildConfig(
         prompt_version=prompts,
         energy_form=form,
         property_pass=property_pass,
-        verbs_file=VOCAB_DIR / "union_verbs.txt",
-        objects_file=VOCAB_DIR / ("union_objects.txt" if name in UNION_ONLY else "default_objects.txt"),
+        provider=provider,
+        model=model,
+        verbs_file=VOCAB_DIR / verbs,
+        objects_file=VOCAB_DIR / objects,
         out=tmp_path / name,
         name=name,
         mode=mode,
