@@ -91,7 +91,7 @@ def _object_answers(
     source: LLMSource, rng: random.Random, objects: list[str], properties: list[str], density: float
 ) -> int:
     """Answer every pending object prompt with a sparse random scoring of its named set."""
-    _, calls = plan_object_calls(source, objects, properties)
+    _, calls = plan_object_calls(source, objects, properties, version="v1")
     for call in calls:
         named: list[str] = call.variables["properties"]
         chosen = [p for p in named if rng.random() < density] or [rng.choice(named)]
@@ -117,7 +117,7 @@ def write_records(
     for verb in verbs:
         payload = _verb_answer(rng, verb, pool)
         used.update(p["name"] for p in payload["properties"])  # type: ignore[attr-defined]
-        _store(source, verb_call(verb), payload)
+        _store(source, verb_call(verb, version="v1"), payload)
     properties = sorted(used)
     _object_answers(source, rng, objects, properties, density=0.05)
     return properties
@@ -131,11 +131,11 @@ def change_one_verb(
     Only the new property is uncovered by existing object records, so stage 2 plans one small
     request per object (as a live provider would be asked), answered here synthetically.
     """
-    record = source.lookup(verb_call(verb))
+    record = source.lookup(verb_call(verb, version="v1"))
     assert record is not None, f"no record for {verb}"
     payload = VerbProperties.model_validate(record.payload).model_dump(mode="json")
     payload["properties"][0] = {"name": CHANGED_PROPERTY, "weight": 0.9}
-    _store(source, verb_call(verb), VerbProperties.model_validate(payload).model_dump(mode="json"))
+    _store(source, verb_call(verb, version="v1"), VerbProperties.model_validate(payload).model_dump(mode="json"))
     wanted = sorted({*properties, CHANGED_PROPERTY})
     _object_answers(source, random.Random(seed + 1), objects, wanted, density=0.3)
 
@@ -170,6 +170,7 @@ def run(
         provider=PROVIDER,
         model=MODEL,
         cache_root=cache_root,
+        prompt_version="v1",  # synthetic answers in the v1 payload shape (no definitions/roles)
     )
     warmup, _ = timed_build("warm-up build (cold embedding cache, not the target)", config)
     warm, result = timed_build("build from a warm cache", config)
