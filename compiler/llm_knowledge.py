@@ -102,18 +102,22 @@ def direct_call(
     )
 
 
+def records_by_subject(source: LLMSource, prompt_ref: str) -> dict[str, list[Record]]:
+    """This provider/model's stored records of one prompt (``id@version``), by subject."""
+    index: dict[str, list[Record]] = defaultdict(list)
+    for _, record in source.cache.iter_records(LLM_SOURCE):
+        req = record.request
+        if req.prompt == prompt_ref and req.provider == source.provider and req.model == source.model:
+            index[req.subject].append(record)
+    return index
+
+
 def index_object_records(source: LLMSource, version: str) -> dict[str, list[Record]]:
     """Existing object-property records of this provider/model/prompt version, by object.
 
     In v2 a record counts for an object only if it was asked in the same sense (gloss).
     """
-    ref = load_prompt("object_properties", version).ref
-    index: dict[str, list[Record]] = defaultdict(list)
-    for _, record in source.cache.iter_records(LLM_SOURCE):
-        req = record.request
-        if req.prompt == ref and req.provider == source.provider and req.model == source.model:
-            index[req.subject].append(record)
-    return index
+    return records_by_subject(source, load_prompt("object_properties", version).ref)
 
 
 def plan_object_calls(
@@ -190,12 +194,7 @@ def plan_property_calls(
     A record covers an object when it was asked with the same definition and the same gloss;
     adding objects therefore asks each property only about the new ones.
     """
-    ref = load_prompt("property_objects", PROPERTY_PROMPT_VERSION).ref
-    index: dict[str, list[Record]] = defaultdict(list)
-    for _, record in source.cache.iter_records(LLM_SOURCE):
-        req = record.request
-        if req.prompt == ref and req.provider == source.provider and req.model == source.model:
-            index[req.subject].append(record)
+    index = records_by_subject(source, load_prompt("property_objects", PROPERTY_PROMPT_VERSION).ref)
     covering: dict[str, list[Record]] = {}
     calls: list[PromptCall] = []
     for prop in properties:
@@ -477,12 +476,7 @@ def plan_direct_calls(
     asks each verb only about the new objects; confidences are absolute, so answers about
     different object sets combine.
     """
-    ref = load_prompt("verb_objects", "v2").ref
-    index: dict[str, list[Record]] = defaultdict(list)
-    for _, record in source.cache.iter_records(LLM_SOURCE):
-        req = record.request
-        if req.prompt == ref and req.provider == source.provider and req.model == source.model:
-            index[req.subject].append(record)
+    index = records_by_subject(source, load_prompt("verb_objects", "v2").ref)
     covering: dict[str, list[Record]] = {}
     calls: list[PromptCall] = []
     for verb in verbs:
