@@ -15,7 +15,6 @@ from craft_e.runtime.sim.robot import CR3Robot, top_down_rotation
 from craft_e.runtime.sim.robot_urdf import (
     CR3_URDF,
     FINGERTIP_BELOW_TCP,
-    TCP_OFFSET,
     robot_urdf_path,
 )
 
@@ -70,11 +69,14 @@ def test_fk_model_matches_pybullet(robot: CR3Robot) -> None:
 def test_tcp_sits_between_the_finger_tips(robot: CR3Robot) -> None:
     hand_state = p.getLinkState(robot.body_id, robot.hand_link, physicsClientId=robot.client)
     tcp = robot.tcp_pose()
-    assert np.linalg.norm(tcp.position - np.array(hand_state[4])) == pytest.approx(TCP_OFFSET)
+    offset = robot.gripper.hand.tcp_offset
+    assert np.linalg.norm(tcp.position - np.array(hand_state[4])) == pytest.approx(offset)
+    robot.gripper.close()  # the Robotiq's tips reach furthest when closed
     tips = [
-        p.getAABB(robot.body_id, j, physicsClientId=robot.client)[0][2]
-        for j in robot.gripper.finger_joints
+        p.getAABB(robot.body_id, link, physicsClientId=robot.client)[0][2]
+        for link in robot.gripper.pads
     ]  # gripper points down at home: the lowest AABB point is the tip
+    robot.gripper.open()
     for tip in tips:
         assert tcp.position[2] - tip == pytest.approx(FINGERTIP_BELOW_TCP, abs=0.003)
 
@@ -111,8 +113,8 @@ def test_unreachable_pose_is_reported_not_executed(robot: CR3Robot) -> None:
 
 def test_gripper_opens_and_closes_on_nothing(robot: CR3Robot) -> None:
     robot.gripper.open()
-    assert robot.gripper.width() == pytest.approx(0.08, abs=0.002)
+    assert robot.gripper.width() == pytest.approx(robot.gripper.hand.stroke, abs=0.002)
     robot.gripper.close()
-    assert robot.gripper.width() < 0.002
+    assert robot.gripper.width() < robot.gripper.config.min_held_width
     assert robot.gripper.check_grasp() is None
     robot.gripper.open()

@@ -39,6 +39,9 @@ def eval_sim(
     aff_mode: AffModeOpt = "expected",
     jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
                                                   "to --jobs 1).")] = 1,
+    gripper: Annotated[str, typer.Option(help="Hand on the CR3: robotiq_2f85 (default) | panda.")] = "robotiq_2f85",
+    wrist_look: Annotated[bool, typer.Option(help="Re-centre each grasp from one wrist depth frame at "
+                                                  "pre-grasp (closed-loop correction).")] = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from craft_e.paths import KB_DIR
@@ -46,12 +49,15 @@ def eval_sim(
     from craft_e.runtime.evaluation.methods import select_methods
     from craft_e.runtime.evaluation.sim_eval import LabelsError, evaluate_sim
     from craft_e.runtime.sim.assets import SharedAssetsMissingError
+    from craft_e.runtime.sim.episode import sim_configs
     from craft_e.runtime.sim.pipeline import PipelineConfig
     from craft_e.runtime.sim.placement import PlacementError
 
     try:
+        env_config, pick = sim_configs(gripper, wrist_look)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
-                                ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps)
+                                ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
+                                pick=pick)
         specs = select_methods(split_names(methods), kb, kb_dir or KB_DIR)
     except ValueError as exc:
         fail(str(exc))
@@ -60,7 +66,8 @@ def eval_sim(
     try:
         with ProgressBar() as bar:
             report = evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
-                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs)
+                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,
+                                  env_config=env_config)
     except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError) as exc:
         fail(str(exc))
     err.print(f"{report.config['episodes']} episodes in {time.perf_counter() - start:.0f} s", highlight=False)

@@ -23,6 +23,9 @@ def demo(
     rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
     gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
     threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 1,
+    gripper: Annotated[str, typer.Option(help="Hand on the CR3: robotiq_2f85 (default) | panda.")] = "robotiq_2f85",
+    wrist_look: Annotated[bool, typer.Option(help="Re-centre the grasp from one wrist depth frame at "
+                                                  "pre-grasp.")] = True,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from craft_e.paths import KB_DIR, REPO_ROOT
@@ -41,11 +44,14 @@ def demo(
     from craft_e.runtime.grounding.settings import GroundingSettings
     from craft_e.runtime.kb.bundle import BundleError, load_bundle
     from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.episode import sim_configs
     from craft_e.runtime.sim.figures import FrameRecorder, describe, plot_episode
     from craft_e.runtime.sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
 
     try:
-        config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads)  # type: ignore[arg-type]
+        env_config, pick = sim_configs(gripper, wrist_look)
+        config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
+                                pick=pick)
         all_labels = load_sim_labels(labels or REPO_ROOT / DEFAULT_LABELS)
     except (ValueError, LabelsError) as exc:
         fail(str(exc))
@@ -71,7 +77,7 @@ def demo(
                                 sim_vocabulary())
     err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
               f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)
-    with SimEnv() as env:
+    with SimEnv(env_config) as env:
         recorder = FrameRecorder(env.client, every=gif_every)
         env.step_hook = recorder
 
@@ -84,9 +90,9 @@ def demo(
             recorder.snapshot()
     out.mkdir(parents=True, exist_ok=True)
     stem = f"{name.replace(' ', '_')}_{seed}"
-    png = plot_episode(result, method, out / f"{stem}.png")
+    png = plot_episode(result, method, out / f"{stem}.png", gripper=gripper)
     gif = recorder.save(out / f"{stem}.gif")
     record = episode_record(spec, result)
     (out / f"{stem}.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-    console.print(describe(result, method), highlight=False, markup=False, soft_wrap=True)
+    console.print(describe(result, method, gripper=gripper), highlight=False, markup=False, soft_wrap=True)
     err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False, markup=False)

@@ -323,6 +323,7 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult, detect_iou: float =
             "pick_outcome": o.pick.outcome.value if o.pick is not None else None,
             "pick_detail": o.pick.detail if o.pick is not None else "",
             "pick_steps": o.pick.steps if o.pick is not None else 0,
+            "pick_wrist_shift_mm": _r(1000 * o.pick.wrist_shift) if o.pick is not None else None,
             "grasp_quality": _r(o.grasp.quality) if o.grasp is not None else None,
             "hypothesis": ({"object": chosen.hypotheses[0].name, "p": _r(chosen.hypotheses[0].probability)}
                            if chosen is not None and chosen.hypotheses else None),
@@ -536,7 +537,8 @@ def evaluate_sim(
         "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "seed": seed,
         "layouts": layouts, "max_pairs": max_pairs, "pairs": len({(s.verb, s.object) for s in specs}),
         "episodes": len(specs), "verbs": len({s.verb for s in specs}), "distractors": DISTRACTORS,
-        "pipeline": cfg.to_dict(), "image_encoder": enc.id, "vocabulary_size": len(sim_vocabulary()),
+        "pipeline": cfg.to_dict(), "gripper": env_cfg.gripper.hand, "wrist_look": cfg.pick.wrist.enabled,
+        "image_encoder": enc.id, "vocabulary_size": len(sim_vocabulary()),
         "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
     }
     return SimReport(results, skipped, records, config_out)

@@ -1,16 +1,21 @@
 """Execute one top-down pick-and-place and judge it from the physics state.
 
-Pre-grasp above, straight descent, close, lift, transport to the drop zone, release. Every
-motion is planned (IK, checked by forward kinematics) before the arm moves, so an unreachable
-grasp costs no simulation and is reported as ``ik_failure``. Success is read from where the
-target body is, not from what the controller believes: it must have been held, lifted, and come
-to rest inside the drop zone.
+Pre-grasp above the grasp along its approach axis (straight down for a top-down grasp), a look
+from the wrist that re-centres the grasp on the object section under the pads (``wrist.py``;
+the paper's closed-loop correction, one small depth frame), straight-line descent, close, lift,
+a short hold that checks the fingers really hold the target, transport to the drop zone,
+release. Every motion is planned (IK, checked by forward kinematics) before the arm moves, so an
+unreachable grasp costs no simulation and is reported as ``ik_failure``. Success is read from
+where the target body is, not from what the controller believes: it must have been held,
+lifted, and come to rest inside the drop zone. One attempt per pick: the headline numbers are
+single-attempt.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -18,10 +23,13 @@ import numpy.typing as npt
 import pybullet as p
 
 from craft_e.runtime.grasp.geometry import TopDownGrasp
-from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.env import EnvConfig, SimEnv
+from craft_e.runtime.sim.gripper import GripperConfig
+from craft_e.runtime.sim.hands import hand_spec
 from craft_e.runtime.sim.robot import CR3Robot, IKSolution
 from craft_e.runtime.sim.robot_urdf import FINGERTIP_BELOW_TCP
 from craft_e.runtime.sim.scene import Scene
+from craft_e.runtime.sim.wrist import WristConfig, look, recentre
 
 
 class Outcome(StrEnum):
@@ -54,6 +62,21 @@ class PickConfig:
     min_transport_gap: float = 0.05  # carry at least this far above the release height
     retreat_height: float = 0.10
     release_settle_steps: int = 120
+    # After the lift the arm holds still this long and the target must still be in the hand
+    # (pinched, or where it was relative to the TCP): catches objects sliding out slowly.
+    hold_steps: int = 48
+    wrist: WristConfig = field(default_factory=WristConfig)
+
+
+def sim_configs(gripper: str, wrist_look: bool) -> tuple[EnvConfig, PickConfig]:
+    """The env and pick settings behind the CLIs' ``--gripper`` and ``--wrist-look``.
+
+    Raises ValueError for an unknown gripper (the message lists the choices).
+    """
+    spec = hand_spec(gripper)
+    pick = PickConfig()
+    pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look))
+    return EnvConfig(gripper=GripperConfig(hand=spec.name)), pick
 
 
 @dataclass(frozen=True)
@@ -66,6 +89,8 @@ class PickResult:
     target_final_xyz: tuple[float, float, float]
     steps: int  # simulation steps the pick took
     detail: str = ""
+    wrist_shift: float = 0.0  # m the wrist look moved the grasp along its closing axis
+    wrist_frames: int = 0  # depth frames rendered from the wrist (robot time)
 
 
 @dataclass(frozen=True)
@@ -180,6 +205,8 @@ class _Progress:
     start_steps: int
     start_z: float
     rise: float = 0.0
+    wrist_shift: float = 0.0
+    wrist_frames: int = 0
 
     def measure_rise(self) -> float:
         self.rise = _body_z(self.env.scene, self.target_body) - self.start_z
@@ -194,6 +221,8 @@ class _Progress:
             target_final_xyz=(float(pos[0]), float(pos[1]), float(pos[2])),
             steps=self.env.steps - self.start_steps,
             detail=detail,
+            wrist_shift=self.wrist_shift,
+            wrist_frames=self.wrist_frames,
         )
 
 
@@ -216,13 +245,18 @@ def execute_pick(
 
     robot.gripper.open()
     robot.follow([plan.pre.q])
+    plan = _look_and_replan(env, grasp, plan, cfg, progress)
     robot.follow([s.q for s in plan.descent])
     robot.gripper.close()
     pinched = robot.gripper.check_grasp(ignore)
     if pinched is None:
         return progress.finish(Outcome.MISSED, None, "fingers closed on nothing")
 
-    lifted = robot.follow([s.q for s in plan.lift], monitor=_InHand(robot, scene, pinched, cfg))
+    in_hand = _InHand(robot, scene, pinched, cfg)
+    lifted = robot.follow([s.q for s in plan.lift], monitor=in_hand)
+    if lifted and cfg.hold_steps > 0:  # hold still: does the body stay in the hand?
+        env.step(cfg.hold_steps)
+        lifted = in_hand()
     rise = progress.measure_rise()
     if not lifted:
         return progress.finish(
@@ -252,6 +286,32 @@ def execute_pick(
         target_body,
         "" if in_zone else "target came to rest outside the drop zone",
     )
+
+
+def _look_and_replan(
+    env: SimEnv, grasp: TopDownGrasp, plan: _Plan, cfg: PickConfig, progress: _Progress
+) -> _Plan:
+    """At pre-grasp: one wrist depth frame, re-centre the grasp, re-plan the rest of the pick.
+
+    Keeps the original plan when the look finds nothing to correct or the corrected pick is not
+    reachable (the arm is already at a reachable pre-grasp).
+    """
+    if not cfg.wrist.enabled:
+        return plan
+    robot, scene = env.robot, env.scene
+    tcp = robot.tcp_pose()
+    obs = look(env.client, tcp.position, tcp.yaw, cfg.wrist)
+    progress.wrist_frames += 1
+    tip_z = plan.grasp_z - FINGERTIP_BELOW_TCP
+    correction = recentre(obs, grasp, tip_z, scene.layout.table_z, cfg.wrist)
+    if correction.shift == 0.0:
+        return plan
+    replanned = _plan(robot, scene, correction.grasp, cfg)
+    if isinstance(replanned, str):
+        return plan
+    robot.follow([replanned.pre.q])
+    progress.wrist_shift = correction.shift
+    return replanned
 
 
 def _in_drop_zone(scene: Scene, body: int) -> bool:

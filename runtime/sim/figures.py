@@ -84,7 +84,8 @@ def explanation_lines(result: EpisodeResult, method: str, max_paths: int = 4) ->
     return lines
 
 
-def plot_episode(result: EpisodeResult, method: str, out: Path, *, title: str | None = None) -> Path:
+def plot_episode(result: EpisodeResult, method: str, out: Path, *, title: str | None = None,
+                 gripper: str | None = None) -> Path:
     """The four-panel figure of one method's episode, written to ``out`` (PNG)."""
     import matplotlib
 
@@ -136,8 +137,10 @@ def plot_episode(result: EpisodeResult, method: str, out: Path, *, title: str | 
     text.set_axis_off()
     text.text(0.0, 1.0, "\n".join(explanation_lines(result, method)), transform=text.transAxes,
               fontsize=9, va="top", ha="left", family="monospace")
-    fig.suptitle(title or f"{result.spec.verb}: target {result.spec.target} among "
-                 f"{', '.join(result.spec.distractors)}", fontsize=12)
+    ok, sentence = verdict(result, method)
+    fig.suptitle((title or f"{result.spec.verb}: target {result.spec.target} among "
+                  f"{', '.join(result.spec.distractors)}" + (f" (gripper {gripper})" if gripper else ""))
+                 + "\n" + sentence, fontsize=12, color="darkgreen" if ok else "firebrick")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
@@ -145,8 +148,41 @@ def plot_episode(result: EpisodeResult, method: str, out: Path, *, title: str | 
     return out
 
 
-def describe(result: EpisodeResult, method: str) -> str:
-    """The terminal explanation: the grounding's ranking with energies and paths, the outcome."""
+_FAILURE_SENTENCES = {
+    "no_target_roi": "perception found no region for the {target}",
+    "no_grasp": "the {target}'s region had no usable grasp, so it could not be chosen",
+    "ik_failure": "the arm could not reach the grasp on the {target}",
+    "missed": "the arm went for the {target} and missed it (the fingers closed on nothing)",
+    "lift_failed": "the arm grasped the {target} but lost it while lifting",
+    "lifted_other_body": "the arm went for the {target} but lifted another object",
+    "slip_during_transport": "the arm lifted the {target} but dropped it on the way",
+    "outside_drop_zone": "the arm carried the {target} but it came to rest outside the drop zone",
+}
+
+
+def verdict(result: EpisodeResult, method: str) -> tuple[bool, str]:
+    """(success, one plain sentence saying what happened), for the terminal and the figure.
+
+    Says outright when the episode failed and at which stage, so a demo is never mistaken for
+    a success.
+    """
+    outcome = result.outcomes[method]
+    target = result.spec.target.replace("_", " ")
+    if outcome.success:
+        return True, f"SUCCESS: picked the {target} and put it in the drop zone."
+    failure = outcome.failure.value
+    if failure == "wrong_object":
+        chosen = result.body_assets.get(outcome.chosen_body) if outcome.chosen_body is not None else None
+        what = chosen.replace("_", " ") if chosen else f"roi{outcome.chosen_roi}"
+        return False, (f"FAILED: '{result.spec.verb}' chose the {what}, not the {target}; "
+                       "a wrong choice counts as a failure, so nothing was picked.")
+    sentence = _FAILURE_SENTENCES.get(failure, failure).format(target=target)
+    return False, f"FAILED: {sentence}."
+
+
+def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) -> str:
+    """The terminal explanation: the grounding's ranking with energies and paths, the outcome,
+    and a final verdict line that says plainly whether the episode succeeded."""
     outcome = result.outcomes[method]
     lines = [outcome.grounding.render()]
     per = result.perception
@@ -156,5 +192,9 @@ def describe(result: EpisodeResult, method: str) -> str:
     pick = outcome.pick
     lines.append(f"outcome: {outcome.failure.value}"
                  + (f" ({pick.detail})" if pick is not None and pick.detail else "")
-                 + (f", {pick.steps} simulation steps" if pick is not None else ""))
+                 + (f", {pick.steps} simulation steps" if pick is not None else "")
+                 + (f", wrist look moved the grasp {pick.wrist_shift * 1000:.1f} mm"
+                    if pick is not None and pick.wrist_frames else "")
+                 + (f", gripper {gripper}" if gripper else ""))
+    lines.append(verdict(result, method)[1])
     return "\n".join(lines)

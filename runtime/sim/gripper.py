@@ -1,28 +1,43 @@
-"""The Franka hand on the CR3 flange: open, close, and ask whether something is held.
+"""The gripper on the CR3 flange: open, close, measure the opening, ask what is held.
 
-pybullet ignores URDF ``mimic`` tags, so both fingers are commanded to the same target with the
-same force; that keeps the grasp centred without a gear constraint. Every action runs a fixed
-number of simulation steps so episodes are deterministic per seed.
+One driver for both hands of ``hands.py``. The Franka hand's two prismatic fingers are commanded
+to the same target with the same force. The Robotiq 2F-85 is a linkage: one driven joint
+(``finger_joint``) and five joints that follow it; pybullet ignores URDF ``mimic`` tags, so each
+follower is tied to the driver by a ``JOINT_GEAR`` constraint and its own motor is switched off.
+The opening is measured between the pads, not read from joint values, so it means the same for
+both hands. Every action runs a fixed number of simulation steps so episodes are deterministic.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+import numpy as np
 import pybullet as p
+
+from craft_e.runtime.sim.hands import DEFAULT_HAND, HandName, HandSpec, hand_spec
 
 
 @dataclass(frozen=True)
 class GripperConfig:
-    """Finger limits and forces; defaults follow the Franka hand (8 cm stroke, 20 N rated)."""
+    """Which hand, and how it is driven; ``None`` fields take the hand's defaults.
 
-    max_finger: float = 0.04  # m of travel per finger (opening = 2x)
-    force: float = 40.0  # N per finger; above the rated 20 N so heavy bottles do not slip
-    max_speed: float = 0.2  # m/s per finger
-    open_steps: int = 60
+    Robotiq force, measured on a fixed 40 mm box (``tests/test_sim_gripper.py``): 8 N·m on the
+    driven joint gives ~60 N normal force per pad, inside the real 2F-85's 20-235 N range.
+    """
+
+    hand: HandName = DEFAULT_HAND
+    force: float | None = None
+    max_speed: float | None = None
+    open_steps: int = 120
     close_steps: int = 120
     min_held_width: float = 0.002  # narrower than this means the fingers met: nothing is held
+    gear_force: float = 500.0  # N·m a mimic constraint may exert to keep the linkage coupled
+
+    @property
+    def spec(self) -> HandSpec:
+        return hand_spec(self.hand)
 
 
 @dataclass(frozen=True)
@@ -38,66 +53,123 @@ class FingerContacts:
 
 
 class ParallelGripper:
-    """Two prismatic fingers on one body, driven with position control."""
+    """A parallel gripper of one CR3 body, driven with position control."""
 
     def __init__(
         self,
         client: int,
         body_id: int,
-        finger_joints: Sequence[int],
+        joints: Mapping[str, int],
         step: Callable[[int], None],
         config: GripperConfig | None = None,
     ) -> None:
-        if len(finger_joints) != 2:
-            raise ValueError(f"a parallel gripper needs two finger joints, got {finger_joints}")
+        """``joints`` maps every joint name of the body to its index (link index = joint index)."""
         self.client = client
         self.body_id = body_id
-        self.finger_joints = list(finger_joints)
         self.config = config or GripperConfig()
+        self.hand = self.config.spec
         self._step = step
+        hand = self.hand
+        self.finger_joints = [joints[n] for n in hand.driven_joints]
+        self.left_links = [self._link(joints, n) for n in hand.left_links]
+        self.right_links = [self._link(joints, n) for n in hand.right_links]
+        self.pads = (self._link(joints, hand.left_pad), self._link(joints, hand.right_pad))
+        self.force = self.config.force if self.config.force is not None else hand.force
+        self.max_speed = self.config.max_speed if self.config.max_speed is not None else hand.max_speed
+        self._mimics = [(joints[m.joint], joints[m.driver], m.multiplier) for m in hand.mimics]
+        self._couple()
+        for link in (*self.left_links, *self.right_links):
+            p.changeDynamics(
+                body_id, link,
+                lateralFriction=hand.pad_lateral_friction,
+                spinningFriction=hand.pad_spinning_friction,
+                rollingFriction=hand.pad_rolling_friction,
+                physicsClientId=client,
+            )
 
-    def _command(self, finger: float) -> None:
+    def _link(self, joints: Mapping[str, int], link: str) -> int:
+        """Index of ``link``: that of the joint whose child it is."""
+        for j in joints.values():
+            info = p.getJointInfo(self.body_id, j, physicsClientId=self.client)
+            if info[12].decode() == link:
+                return j
+        raise KeyError(f"link {link!r} not in the robot")
+
+    def _couple(self) -> None:
+        """Gear constraints: each follower turns ``multiplier`` times its driver."""
+        for joint, driver, multiplier in self._mimics:
+            p.setJointMotorControl2(self.body_id, joint, p.VELOCITY_CONTROL, force=0.0,
+                                    physicsClientId=self.client)
+            c = p.createConstraint(
+                self.body_id, driver, self.body_id, joint,
+                jointType=p.JOINT_GEAR, jointAxis=[1, 0, 0],
+                parentFramePosition=[0, 0, 0], childFramePosition=[0, 0, 0],
+                physicsClientId=self.client,
+            )
+            p.changeConstraint(c, gearRatio=-multiplier, maxForce=self.config.gear_force, erp=1.0,
+                               physicsClientId=self.client)
+
+    def _command(self, q: float) -> None:
         for joint in self.finger_joints:
             p.setJointMotorControl2(
                 self.body_id,
                 joint,
                 p.POSITION_CONTROL,
-                targetPosition=finger,
-                force=self.config.force,
-                maxVelocity=self.config.max_speed,
+                targetPosition=q,
+                force=self.force,
+                maxVelocity=self.max_speed,
                 physicsClientId=self.client,
             )
 
     def reset_open(self) -> None:
         """Teleport the fingers open (scene setup only; not a physical motion)."""
+        q = self.hand.open_q
         for joint in self.finger_joints:
-            p.resetJointState(
-                self.body_id, joint, self.config.max_finger, physicsClientId=self.client
-            )
-        self._command(self.config.max_finger)
+            p.resetJointState(self.body_id, joint, q, physicsClientId=self.client)
+        for joint, _, multiplier in self._mimics:
+            p.resetJointState(self.body_id, joint, q * multiplier, physicsClientId=self.client)
+        self._command(q)
 
     def open(self) -> None:
-        self._command(self.config.max_finger)
+        self._command(self.hand.open_q)
         self._step(self.config.open_steps)
 
     def close(self) -> None:
-        """Close until blocked; the position target stays at 0 so the force keeps squeezing."""
-        self._command(0.0)
+        """Close until blocked; the target stays at the closed limit so the force keeps squeezing."""
+        self._command(self.hand.closed_q)
         self._step(self.config.close_steps)
 
     def width(self) -> float:
-        """Current opening between the fingers (m)."""
-        states = p.getJointStates(self.body_id, self.finger_joints, physicsClientId=self.client)
-        return float(sum(s[0] for s in states))
+        """Current gap between the pads' inner faces (m), measured along the closing axis."""
+        states = [p.getLinkState(self.body_id, link, computeForwardKinematics=True,
+                                 physicsClientId=self.client) for link in self.pads]
+        rotation = np.array(p.getMatrixFromQuaternion(states[0][5]), dtype=np.float64).reshape(3, 3)
+        axis = rotation[:, 1]  # both hands close along their base's (and pads') y axis
+        gap = abs(float((np.array(states[0][4]) - np.array(states[1][4])) @ axis))
+        return max(0.0, gap - self.hand.pad_thickness)
 
     def contacts(self) -> FingerContacts:
         found: list[frozenset[int]] = []
-        for joint in self.finger_joints:
-            points = p.getContactPoints(
-                bodyA=self.body_id, linkIndexA=joint, physicsClientId=self.client
-            )
-            found.append(frozenset(int(c[2]) for c in points if c[2] != self.body_id))
+        for links in (self.left_links, self.right_links):
+            bodies: set[int] = set()
+            for link in links:
+                points = p.getContactPoints(bodyA=self.body_id, linkIndexA=link,
+                                            physicsClientId=self.client)
+                bodies.update(int(c[2]) for c in points if c[2] != self.body_id)
+            found.append(frozenset(bodies))
         return FingerContacts(found[0], found[1])
+
+    def pad_forces(self, body: int) -> tuple[float, float]:
+        """Total normal force (N) of each finger on ``body``; for tests and diagnostics."""
+        totals: list[float] = []
+        for links in (self.left_links, self.right_links):
+            total = 0.0
+            for link in links:
+                for c in p.getContactPoints(bodyA=self.body_id, bodyB=body, linkIndexA=link,
+                                            physicsClientId=self.client):
+                    total += float(c[9])
+            totals.append(total)
+        return totals[0], totals[1]
 
     def check_grasp(self, ignore: frozenset[int] = frozenset()) -> int | None:
         """Body pinched between both fingers, or None.

@@ -1,4 +1,4 @@
-"""The Dobot CR3 with a parallel gripper: top-down IK and step-counted motions.
+"""The Dobot CR3 with a parallel gripper (``hands.py``): top-down IK and step-counted motions.
 
 Motions are joint-space paths played back with position control for a number of simulation steps
 computed from the path length (never from wall-clock time), so an episode is a pure function of
@@ -20,7 +20,6 @@ import pybullet as p
 from craft_e.runtime.sim.gripper import GripperConfig, ParallelGripper
 from craft_e.runtime.sim.kinematics import SerialChain, load_chain
 from craft_e.runtime.sim.robot_urdf import (
-    FINGER_JOINTS,
     HAND_JOINT,
     TCP_JOINT,
     TCP_LINK,
@@ -125,7 +124,8 @@ class CR3Robot:
         self.client = client
         self.config = config or ArmConfig()
         self._step = step
-        urdf = robot_urdf_path()
+        gripper_config = gripper_config or GripperConfig()
+        urdf = robot_urdf_path(gripper_config.hand)
         self.base_position = np.asarray(base_position, dtype=np.float64)
         self.body_id = p.loadURDF(
             str(urdf),
@@ -138,7 +138,6 @@ class CR3Robot:
         # pybullet link index == index of the joint that has the link as its child
         self.tcp_link = names.index(TCP_JOINT)
         self.hand_link = names.index(HAND_JOINT)
-        finger_joints = [names.index(n) for n in FINGER_JOINTS]
         self.movable_joints = [
             j
             for j in range(len(names))
@@ -146,7 +145,9 @@ class CR3Robot:
         ]
         self._lower, self._upper = self._limits()
         self.chain: SerialChain = load_chain(urdf, TCP_LINK)
-        self.gripper = ParallelGripper(client, self.body_id, finger_joints, step, gripper_config)
+        self.gripper = ParallelGripper(
+            client, self.body_id, {n: i for i, n in enumerate(names)}, step, gripper_config
+        )
         self.reset_home()
 
     # ----------------------------------------------------------------- state

@@ -1,12 +1,17 @@
-"""Build the loadable CR3 + Panda-hand URDF from the unmodified upstream files.
+"""Build the loadable CR3 + gripper URDF from the unmodified upstream files.
 
 The Dobot CR3 URDF in ``shared/`` is read-only and, as shipped, wrong for pybullet: meshes point at
 ``package://dobot_rviz/...``, every joint has effort/velocity 0 (motors would exert no force), and
 all materials are named ``""`` (pybullet caches materials by name, so the arm renders black). We fix
-those in memory, attach the Franka hand from ``pybullet_data`` (a reliable parallel gripper without
-mimic-joint constraints) to ``Link6``, add a ``tcp`` link between the finger tips, and write the
-result into a cache folder keyed by the content hash of the inputs, so shared/ is never touched and
-concurrent processes never see a half-written file.
+those in memory, attach a hand (``hands.py``: the Robotiq 2F-85 from ``shared/`` by default, or
+the Franka hand from ``pybullet_data``) to ``Link6``, add a ``tcp`` link between the finger pads,
+and write the result into a cache folder keyed by the content hash of the inputs, so shared/ is
+never touched and concurrent processes never see a half-written file.
+
+The Robotiq URDF needs two more fixes: its meshes point at ``package://robotiq_2f_85_...``, and
+its finger links have no ``<inertial>`` (commented out upstream), which pybullet replaces by
+1 kg and unit inertia per link, a hand of 8 kg of wobbling fingers; we give them their upstream
+masses. Its ``mimic`` tags are ignored by pybullet; the gripper adds gear constraints.
 """
 
 from __future__ import annotations
@@ -20,27 +25,36 @@ from pathlib import Path
 import pybullet_data
 
 from craft_e.runtime.sim.assets import shared_path
+from craft_e.runtime.sim.hands import (
+    DEFAULT_HAND,
+    FINGERTIP_BELOW_TCP,
+    PANDA,
+    HandSpec,
+    hand_spec,
+)
 
 CR3_DIR = "assets/robots/dobot_cr3"
 CR3_URDF = f"{CR3_DIR}/cr3_robot.urdf"
 PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
-BUILDER_VERSION = "cr3-panda-hand/v1"
+ROBOTIQ_URDF = "assets/robots/robotiq_2f85/robotiq_85.urdf"
+BUILDER_VERSION = "cr3-hand/v2"
 
 JOINT_EFFORT = 150.0  # N·m; upstream says 0, which pybullet reads as "no motor force"
 JOINT_VELOCITY = 3.14  # rad/s
 FLANGE_LINK = "Link6"
-HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
-FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
+PANDA_HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
 TCP_LINK = "tcp"
 HAND_JOINT = "flange_to_hand"  # fixed joint whose child link is the hand
 TCP_JOINT = "hand_to_tcp"
-# Distance from the hand base to the point between the finger pads, along the approach axis.
-# The Franka grasp target sits at 0.105 m; the pad centres are ~0.1 m down the hand.
-TCP_OFFSET = 0.1034
-# How far the finger tips reach below the TCP (finger collision mesh, measured: tips at 0.117 m
-# down the hand). The executor keeps the TCP at least this high above the table.
-FINGERTIP_BELOW_TCP = 0.0136
-FINGER_FRICTION = 1.5  # rubber-like pads; pybullet multiplies this with the object's friction
+# Upstream masses of the Robotiq links (kg), from the commented-out <inertial> blocks.
+ROBOTIQ_LINK_MASS = {
+    "outer_knuckle": 0.00853,
+    "outer_finger": 0.02261,
+    "inner_finger": 0.01040,
+    "inner_finger_pad": 0.005,  # not given upstream: a 22 x 6 x 37 mm rubber pad
+    "inner_knuckle": 0.02712,
+}
+__all__ = ["FINGERTIP_BELOW_TCP", "compose_urdf_text", "robot_urdf_path"]
 
 
 def _fix_cr3(root: ET.Element, meshes_dir: Path) -> None:
@@ -58,14 +72,14 @@ def _fix_cr3(root: ET.Element, meshes_dir: Path) -> None:
             link.append(_inertial(0.001))
 
 
-def _hand_elements(panda_root: ET.Element, panda_dir: Path) -> list[ET.Element]:
+def _panda_elements(panda_root: ET.Element, panda_dir: Path) -> list[ET.Element]:
     """The Franka hand links and finger joints, with absolute meshes and unique materials."""
     keep: list[ET.Element] = []
     for link in panda_root.findall("link"):
-        if link.attrib["name"] in HAND_LINKS:
+        if link.attrib["name"] in PANDA_HAND_LINKS:
             keep.append(link)
     for joint in panda_root.findall("joint"):
-        if joint.attrib["name"] in FINGER_JOINTS:
+        if joint.attrib["name"] in PANDA.driven_joints:
             mimic = joint.find("mimic")
             if mimic is not None:  # pybullet ignores mimic tags; both fingers are commanded
                 joint.remove(mimic)
@@ -79,8 +93,36 @@ def _hand_elements(panda_root: ET.Element, panda_dir: Path) -> list[ET.Element]:
             if material.find("color") is None:
                 ET.SubElement(material, "color", rgba="0.95 0.95 0.95 1")
         for friction in element.iter("lateral_friction"):
-            friction.attrib["value"] = f"{FINGER_FRICTION}"
+            friction.attrib["value"] = f"{PANDA.pad_lateral_friction}"
     return keep
+
+
+def _robotiq_elements(root: ET.Element, meshes_dir: Path) -> list[ET.Element]:
+    """The Robotiq 2F-85 links and joints: absolute meshes, unique materials, real masses.
+
+    Mimic tags stay (documentation; pybullet ignores them). Link names are unique in the
+    composed tree already (``robotiq_arg2f_*``, ``left_*``, ``right_*``).
+    """
+    keep = [*root.findall("link"), *root.findall("joint")]
+    for element in keep:
+        for mesh in element.iter("mesh"):
+            rel = mesh.attrib["filename"].split("/meshes/", 1)[1]
+            mesh.attrib["filename"] = str(meshes_dir / rel)
+        for i, material in enumerate(element.iter("material")):
+            material.attrib["name"] = f"robotiq_{element.attrib['name']}_{i}"
+    for link in root.findall("link"):
+        if link.find("inertial") is None:
+            name = link.attrib["name"].removeprefix("left_").removeprefix("right_")
+            link.append(_inertial(ROBOTIQ_LINK_MASS.get(name, 0.01), inertia=2e-6))
+    return keep
+
+
+def _hand_elements(hand: HandSpec) -> list[ET.Element]:
+    if hand.name == "panda":
+        panda_root = ET.parse(PANDA_URDF).getroot()
+        return _panda_elements(panda_root, PANDA_URDF.parent)
+    path = shared_path(ROBOTIQ_URDF)
+    return _robotiq_elements(ET.parse(path).getroot(), path.parent / "meshes")
 
 
 def _fixed_joint(name: str, parent: str, child: str, xyz: str, rpy: str = "0 0 0") -> ET.Element:
@@ -91,13 +133,12 @@ def _fixed_joint(name: str, parent: str, child: str, xyz: str, rpy: str = "0 0 0
     return joint
 
 
-def _inertial(mass: float) -> ET.Element:
+def _inertial(mass: float, inertia: float = 1e-6) -> ET.Element:
     inertial = ET.Element("inertial")
     ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
     ET.SubElement(inertial, "mass", value=f"{mass}")
-    ET.SubElement(
-        inertial, "inertia", ixx="1e-6", ixy="0", ixz="0", iyy="1e-6", iyz="0", izz="1e-6"
-    )
+    i = f"{inertia:g}"
+    ET.SubElement(inertial, "inertia", ixx=i, ixy="0", ixz="0", iyy=i, iyz="0", izz=i)
     return inertial
 
 
@@ -108,16 +149,16 @@ def _tcp_link() -> ET.Element:
     return link
 
 
-def compose_urdf_text() -> str:
-    """The fixed CR3 with the Franka hand on its flange, as URDF text."""
+def compose_urdf_text(hand: str = DEFAULT_HAND) -> str:
+    """The fixed CR3 with ``hand`` on its flange, as URDF text."""
+    spec = hand_spec(hand)
     cr3_urdf = shared_path(CR3_URDF)
     cr3_root = ET.parse(cr3_urdf).getroot()
     _fix_cr3(cr3_root, shared_path(f"{CR3_DIR}/meshes"))
-    panda_root = ET.parse(PANDA_URDF).getroot()
-    cr3_root.extend(_hand_elements(panda_root, PANDA_URDF.parent))
-    cr3_root.append(_fixed_joint(HAND_JOINT, FLANGE_LINK, "panda_hand", "0 0 0"))
+    cr3_root.extend(_hand_elements(spec))
+    cr3_root.append(_fixed_joint(HAND_JOINT, FLANGE_LINK, spec.base_link, "0 0 0"))
     cr3_root.append(_tcp_link())
-    cr3_root.append(_fixed_joint(TCP_JOINT, "panda_hand", TCP_LINK, f"0 0 {TCP_OFFSET}"))
+    cr3_root.append(_fixed_joint(TCP_JOINT, spec.base_link, TCP_LINK, f"0 0 {spec.tcp_offset}"))
     ET.indent(cr3_root)
     return ET.tostring(cr3_root, encoding="unicode")
 
@@ -127,11 +168,11 @@ def _cache_dir() -> Path:
     return Path(base)
 
 
-def robot_urdf_path() -> Path:
+def robot_urdf_path(hand: str = DEFAULT_HAND) -> Path:
     """Path of the composed URDF, (re)built when its inputs or this builder change."""
-    text = compose_urdf_text()
+    text = compose_urdf_text(hand)
     digest = hashlib.sha256(f"{BUILDER_VERSION}\n{text}".encode()).hexdigest()[:16]
-    path = _cache_dir() / f"cr3_panda_{digest}.urdf"
+    path = _cache_dir() / f"cr3_{hand}_{digest}.urdf"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".urdf.tmp")

@@ -1,0 +1,86 @@
+"""Benchmark: execution alone — pick the *right* object with the robot's own grasp.
+
+``craft eval sim`` mixes choosing the object with picking it. This isolates the pick: for every
+episode of a labels file (the same scenes ``craft eval sim`` builds), the ROIs are the
+simulator's masks (``rois=oracle``), the target's ROI is taken as chosen, and its best usable
+grasp (GR-ConvNet by default, with the grasp checks) is executed. Outcomes are counted as in
+``craft eval sim`` (``no_grasp`` when the target's ROI has no usable grasp).
+
+Run: ``.venv/bin/python benchmarks/bench_execution.py --labels artifacts/labels/sim_dev_labels.csv
+[--hand robotiq_2f85|panda] [--grasp grconvnet|oracle] [--max-pairs N] [--json OUT]``.
+Single attempt per episode, like the headline numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from craft_e.paths import REPO_ROOT
+from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
+from craft_e.runtime.sim.env import EnvConfig, SimEnv
+from craft_e.runtime.sim.episode import execute_pick
+from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive
+
+
+def _env_config(hand: str | None) -> EnvConfig:
+    if hand is None:
+        return EnvConfig()
+    from craft_e.runtime.sim.gripper import GripperConfig
+
+    return EnvConfig(gripper=GripperConfig(hand=hand))  # type: ignore[arg-type]
+
+
+def run(labels: Path, hand: str | None, grasp: str, max_pairs: int | None) -> dict[str, Any]:
+    specs = make_episode_specs(load_sim_labels(labels), layouts=3, seed=0)
+    if max_pairs is not None:
+        specs = specs[: 3 * max_pairs]
+    config = PipelineConfig(grasp=grasp, rois="oracle")  # type: ignore[arg-type]
+    encoder = default_encoder(1)
+    rows: list[dict[str, Any]] = []
+    with SimEnv(_env_config(hand)) as env:
+        for spec in specs:
+            env.reset(spec.scene)
+            start = SavedStart(env)
+            try:
+                perception = perceive(env, encoder, config)
+                index = perception.target_roi
+                usable = perception.rois[index].usable if index is not None else ()
+                if not usable or usable[0].pose is None:
+                    outcome, detail = "no_grasp", "no usable grasp on the target's ROI"
+                else:
+                    start.restore()
+                    result = execute_pick(env, usable[0].pose, perception.target_body, config.pick)
+                    outcome, detail = result.outcome.value, result.detail
+            finally:
+                start.release()
+            rows.append({"episode": spec.id, "target": spec.scene.target, "outcome": outcome,
+                         "detail": detail})
+            print(f"{spec.id:40s} {outcome:22s} {detail}", flush=True)
+    counts = Counter(r["outcome"] for r in rows)
+    return {"hand": hand or "default", "grasp": grasp, "episodes": len(rows),
+            "outcomes": dict(sorted(counts.items())), "rows": rows}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--labels", type=Path, default=REPO_ROOT / "artifacts/labels/sim_dev_labels.csv")
+    parser.add_argument("--hand", default=None, help="robotiq_2f85 | panda (default: the env's)")
+    parser.add_argument("--grasp", default="grconvnet")
+    parser.add_argument("--max-pairs", type=int, default=None)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    report = run(args.labels, args.hand, args.grasp, args.max_pairs)
+    n = report["episodes"]
+    print(f"\nhand {report['hand']}, grasp {report['grasp']}, {n} episodes")
+    for outcome, count in report["outcomes"].items():
+        print(f"  {outcome:22s} {count:4d}  {100 * count / max(n, 1):5.1f} %")
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

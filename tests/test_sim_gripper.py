@@ -1,0 +1,129 @@
+"""The grippers of the simulated CR3: the Robotiq 2F-85 model, its grip, and a pick of a cube.
+
+The Robotiq is the default hand; its linkage only works in pybullet through gear constraints
+(the URDF's mimic tags are ignored), so these tests check what would break first: the joint
+limits, the opening measured between the pads, a firm symmetric grip on a box of known width,
+and a whole pick of a free cube. The Franka hand stays selectable and is picked once too.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from craft_e.runtime.grasp.geometry import TopDownGrasp
+from craft_e.runtime.sim.env import EnvConfig, SimEnv
+from craft_e.runtime.sim.episode import Outcome, execute_pick
+from craft_e.runtime.sim.gripper import GripperConfig
+from craft_e.runtime.sim.hands import DEFAULT_HAND, FINGERTIP_BELOW_TCP, ROBOTIQ_2F85, hand_spec
+from craft_e.runtime.sim.robot import CR3Robot
+from craft_e.runtime.sim.scene import SceneSpec
+
+EASY = SceneSpec("pour", "mustard_bottle", ("foam_brick", "knife", "apple", "stapler_2"), seed=2)
+
+
+@pytest.fixture(scope="module")
+def robot() -> Iterator[CR3Robot]:
+    client = p.connect(p.DIRECT)
+    p.setGravity(0, 0, -9.81, physicsClientId=client)
+
+    def step(n: int) -> None:
+        for _ in range(n):
+            p.stepSimulation(physicsClientId=client)
+
+    try:
+        yield CR3Robot(client, step)
+    finally:
+        p.disconnect(physicsClientId=client)
+
+
+def _joint(robot: CR3Robot, name: str) -> tuple[float, float]:
+    for j in range(p.getNumJoints(robot.body_id, physicsClientId=robot.client)):
+        info = p.getJointInfo(robot.body_id, j, physicsClientId=robot.client)
+        if info[1].decode() == name:
+            return float(info[8]), float(info[9])
+    raise AssertionError(f"joint {name} missing")
+
+
+def test_default_hand_is_the_robotiq_with_its_limits(robot: CR3Robot) -> None:
+    assert DEFAULT_HAND == "robotiq_2f85" and robot.gripper.hand is ROBOTIQ_2F85
+    assert _joint(robot, "finger_joint") == pytest.approx((0.0, 0.8))
+    assert _joint(robot, "left_inner_finger_joint") == pytest.approx((-0.8757, 0.0))
+    masses = [p.getDynamicsInfo(robot.body_id, link, physicsClientId=robot.client)[0]
+              for link in (*robot.gripper.left_links, *robot.gripper.right_links)]
+    assert max(masses) < 0.1  # upstream has no inertials: pybullet would make each 1 kg
+    with pytest.raises(ValueError, match="robotiq_2f85"):
+        hand_spec("gripper3000")
+
+
+def test_robotiq_opens_to_85mm_and_closes_with_the_tips_below_the_tcp(robot: CR3Robot) -> None:
+    robot.gripper.open()
+    assert robot.gripper.width() == pytest.approx(0.086, abs=0.002)
+    robot.gripper.close()
+    assert robot.gripper.width() < 0.003
+    assert robot.gripper.check_grasp() is None
+    tips = min(p.getAABB(robot.body_id, link, physicsClientId=robot.client)[0][2]
+               for link in robot.gripper.pads)  # pointing down: the lowest point is the tip
+    assert robot.tcp_pose().position[2] - tips == pytest.approx(FINGERTIP_BELOW_TCP, abs=0.002)
+    robot.gripper.open()
+
+
+@pytest.mark.parametrize("width", [0.02, 0.05])
+def test_robotiq_closes_firmly_and_symmetrically_on_a_fixed_box(
+    robot: CR3Robot, width: float
+) -> None:
+    client = robot.client
+    tcp = robot.tcp_pose()
+    shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.01, width / 2, 0.02],
+                                   physicsClientId=client)
+    yaw = tcp.yaw - math.pi / 2  # the box's y (its width) along the closing axis
+    box = p.createMultiBody(0, shape, basePosition=list(tcp.position - 0.005 * tcp.rotation[:, 2]),
+                            baseOrientation=p.getQuaternionFromEuler([0, 0, yaw]),
+                            physicsClientId=client)
+    try:
+        robot.gripper.close()
+        assert robot.gripper.check_grasp() == box
+        assert robot.gripper.width() == pytest.approx(width, abs=0.004)
+        left, right = robot.gripper.pad_forces(box)
+        assert left > 20.0 and right > 20.0, (left, right)  # the real 2F-85: 20-235 N
+        assert max(left, right) / min(left, right) < 2.0
+    finally:
+        robot.gripper.open()
+        p.removeBody(box, physicsClientId=client)
+
+
+def _cube_pick(hand: str) -> Outcome:
+    with SimEnv(EnvConfig(gripper=GripperConfig(hand=hand))) as env:  # type: ignore[arg-type]
+        scene = env.reset(EASY)
+        positions = np.array([scene.pose(o.body_id)[0][:2] for o in scene.objects])
+        grid = np.array([(x, y) for x in np.linspace(0.25, 0.45, 9) for y in np.linspace(-0.2, 0.2, 17)])
+        gaps = np.min(np.linalg.norm(grid[:, None, :] - positions[None], axis=2), axis=1)
+        x, y = grid[int(np.argmax(gaps))]
+        assert gaps.max() > 0.1
+        half = 0.02
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[half] * 3, physicsClientId=env.client)
+        cube = p.createMultiBody(0.1, shape, basePosition=[x, y, half + 0.001],
+                                 baseOrientation=p.getQuaternionFromEuler([0, 0, 0.3]),
+                                 physicsClientId=env.client)
+        p.changeDynamics(cube, -1, lateralFriction=0.8, spinningFriction=0.002,
+                         physicsClientId=env.client)
+        env.step(60)
+        grasp = TopDownGrasp(position=np.array([x + 0.006, y, 2 * half]), yaw=0.3, width_m=0.04)
+        result = execute_pick(env, grasp, cube)
+        assert result.wrist_frames == 1
+        # the grasp was 6 mm off the cube's centre along x: the wrist look moves it back along
+        # the closing axis (its x component is 6 mm * cos 0.3)
+        assert result.wrist_shift == pytest.approx(-0.006 * math.cos(0.3), abs=0.002)
+        return result.outcome
+
+
+def test_robotiq_picks_a_cube_at_a_known_pose() -> None:
+    assert _cube_pick("robotiq_2f85") is Outcome.SUCCESS
+
+
+def test_panda_hand_stays_selectable() -> None:
+    assert _cube_pick("panda") is Outcome.SUCCESS
