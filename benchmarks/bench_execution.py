@@ -35,9 +35,7 @@ def _env_config(hand: str | None) -> EnvConfig:
 
 
 def run(labels: Path, hand: str | None, grasp: str, max_pairs: int | None) -> dict[str, Any]:
-    specs = make_episode_specs(load_sim_labels(labels), layouts=3, seed=0)
-    if max_pairs is not None:
-        specs = specs[: 3 * max_pairs]
+    specs = make_episode_specs(load_sim_labels(labels), layouts=3, seed=0, max_pairs=max_pairs)
     config = PipelineConfig(grasp=grasp, rois="oracle")  # type: ignore[arg-type]
     encoder = default_encoder(1)
     rows: list[dict[str, Any]] = []

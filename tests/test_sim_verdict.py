@@ -1,0 +1,42 @@
+"""``craft sim demo`` says plainly whether the episode succeeded, and where it failed."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from craft_e.runtime.sim.figures import verdict
+from craft_e.runtime.sim.pipeline import Failure
+
+
+def _result(failure: Failure, chosen_body: int | None = 7) -> Any:
+    outcome = SimpleNamespace(success=failure is Failure.SUCCESS, failure=failure,
+                              chosen_body=chosen_body, chosen_roi=2)
+    return SimpleNamespace(outcomes={"m": outcome}, body_assets={7: "knife", 9: "blue_cup"},
+                           spec=SimpleNamespace(verb="cut", target="knife"))
+
+
+def test_success_is_called_a_success() -> None:
+    ok, sentence = verdict(_result(Failure.SUCCESS), "m")
+    assert ok and sentence.startswith("SUCCESS") and "knife" in sentence
+
+
+@pytest.mark.parametrize(
+    ("failure", "words"),
+    [
+        (Failure.MISSED, "missed it"),
+        (Failure.LIFT_FAILED, "lost it while lifting"),
+        (Failure.SLIP_DURING_TRANSPORT, "dropped it on the way"),
+        (Failure.NO_GRASP, "no usable grasp"),
+    ],
+)
+def test_every_failure_is_called_a_failure(failure: Failure, words: str) -> None:
+    ok, sentence = verdict(_result(failure), "m")
+    assert not ok and sentence.startswith("FAILED") and words in sentence
+
+
+def test_a_wrong_choice_names_what_was_chosen() -> None:
+    ok, sentence = verdict(_result(Failure.WRONG_OBJECT, chosen_body=9), "m")
+    assert not ok and "blue cup" in sentence and "not the knife" in sentence
