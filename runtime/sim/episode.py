@@ -66,6 +66,11 @@ class PickConfig:
     # (pinched, or where it was relative to the TCP): catches objects sliding out slowly.
     hold_steps: int = 48
     wrist: WristConfig = field(default_factory=WristConfig)
+    # Lift high enough to carry the object over the tallest surface in the overhead depth
+    # frame (plus this margin) when reachable: a low carry swept held objects into tall
+    # distractors (cut/knife/0: the hand hit a box on the way to the zone, the knife fell).
+    clear_obstacles: bool = True
+    obstacle_margin: float = 0.03
 
 
 def sim_configs(gripper: str, wrist_look: bool) -> tuple[EnvConfig, PickConfig]:
@@ -107,8 +112,15 @@ def _all_ok(robot: CR3Robot, solutions: list[IKSolution]) -> bool:
     return all(s.ok(robot.config) for s in solutions)
 
 
-def _plan(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -> _Plan | str:
-    """All waypoints of the pick, or a string saying which one is unreachable."""
+def _plan(
+    robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig, rise: float = 0.0
+) -> _Plan | str:
+    """All waypoints of the pick, or a string saying which one is unreachable.
+
+    The lift rises by ``rise`` (to carry the object over the tallest thing on the table) when
+    that is reachable, else by ``cfg.lift_height``; feasibility is that of the plain lift, so
+    ``plan_pick`` answers the same with or without ``rise``.
+    """
     table_z = scene.layout.table_z
     x, y = float(grasp.position[0]), float(grasp.position[1])
     grasp_z = max(
@@ -123,15 +135,18 @@ def _plan(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -
     if not _all_ok(robot, descent):
         return f"grasp pose ({x:.3f}, {y:.3f}, {grasp_z:.3f}) unreachable"
     lift: list[IKSolution] = []
-    for i in range(cfg.lift_inward_steps + 1):
-        radius = math.hypot(x, y)
-        shrink = max(0.0, 1.0 - i * cfg.lift_inward_step / radius) if radius > 0 else 1.0
-        lift = robot.plan_linear(
-            descent[-1].q, (x * shrink, y * shrink, grasp_z + cfg.lift_height), yaw
-        )
-        if _all_ok(robot, lift):
+    found = False
+    for height in ([rise] if rise > cfg.lift_height else []) + [cfg.lift_height]:
+        for i in range(cfg.lift_inward_steps + 1):
+            radius = math.hypot(x, y)
+            shrink = max(0.0, 1.0 - i * cfg.lift_inward_step / radius) if radius > 0 else 1.0
+            lift = robot.plan_linear(descent[-1].q, (x * shrink, y * shrink, grasp_z + height), yaw)
+            if _all_ok(robot, lift):
+                found = True
+                break
+        if found:
             break
-    else:
+    if not found:
         return f"no reachable lift of {cfg.lift_height} m above ({x:.3f}, {y:.3f})"
     lift_end = robot.forward(lift[-1].q).position
     dz = scene.layout.drop_zone
@@ -239,13 +254,14 @@ def execute_pick(
     ignore = frozenset({scene.table_id})
     if grasp is None:
         return progress.finish(Outcome.NO_GRASP, None, "no grasp candidate")
-    plan = _plan(robot, scene, grasp, cfg)
+    rise = _clearing_rise(env, cfg)
+    plan = _plan(robot, scene, grasp, cfg, rise)
     if isinstance(plan, str):
         return progress.finish(Outcome.IK_FAILURE, None, plan)
 
     robot.gripper.open()
     robot.follow([plan.pre.q])
-    plan = _look_and_replan(env, grasp, plan, cfg, progress)
+    plan = _look_and_replan(env, grasp, plan, cfg, progress, rise)
     robot.follow([s.q for s in plan.descent])
     robot.gripper.close()
     pinched = robot.gripper.check_grasp(ignore)
@@ -288,8 +304,24 @@ def execute_pick(
     )
 
 
+def _clearing_rise(env: SimEnv, cfg: PickConfig) -> float:
+    """How far to lift so that the held object's bottom clears every surface in view.
+
+    From the overhead depth frame (the arm is at home, out of view, before a pick starts): the
+    highest surface above the table plus ``obstacle_margin``; 0 when disabled.
+    """
+    if not cfg.clear_obstacles:
+        return 0.0
+    z = env.capture().points_world()[..., 2]
+    z = z[np.isfinite(z)]
+    table_z = env.scene.layout.table_z
+    top = float(z.max()) if z.size else table_z
+    return max(0.0, top - table_z) + cfg.obstacle_margin
+
+
 def _look_and_replan(
-    env: SimEnv, grasp: TopDownGrasp, plan: _Plan, cfg: PickConfig, progress: _Progress
+    env: SimEnv, grasp: TopDownGrasp, plan: _Plan, cfg: PickConfig, progress: _Progress,
+    rise: float,
 ) -> _Plan:
     """At pre-grasp: one wrist depth frame, re-centre the grasp, re-plan the rest of the pick.
 
@@ -306,7 +338,7 @@ def _look_and_replan(
     correction = recentre(obs, grasp, tip_z, scene.layout.table_z, cfg.wrist)
     if correction.shift == 0.0:
         return plan
-    replanned = _plan(robot, scene, correction.grasp, cfg)
+    replanned = _plan(robot, scene, correction.grasp, cfg, rise)
     if isinstance(replanned, str):
         return plan
     robot.follow([replanned.pre.q])
