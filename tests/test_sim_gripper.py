@@ -1,9 +1,9 @@
 """The grippers of the simulated CR3: the Robotiq 2F-85 model, its grip, and a pick of a cube.
 
-The Robotiq is the default hand; its linkage only works in pybullet through gear constraints
-(the URDF's mimic tags are ignored), so these tests check what would break first: the joint
-limits, the opening measured between the pads, a firm symmetric grip on a box of known width,
-and a whole pick of a free cube. The Franka hand stays selectable and is picked once too.
+The Robotiq's linkage only works in pybullet through gear constraints (the URDF's mimic tags are
+ignored), so these tests check what would break first: the joint limits, the opening measured
+between the pads, a firm symmetric grip on a box of known width, and a whole pick of a free
+cube. The Franka hand (the default) picks the same cube.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def robot() -> Iterator[CR3Robot]:
             p.stepSimulation(physicsClientId=client)
 
     try:
-        yield CR3Robot(client, step)
+        yield CR3Robot(client, step, gripper_config=GripperConfig(hand="robotiq_2f85"))
     finally:
         p.disconnect(physicsClientId=client)
 
@@ -49,8 +49,8 @@ def _joint(robot: CR3Robot, name: str) -> tuple[float, float]:
     raise AssertionError(f"joint {name} missing")
 
 
-def test_default_hand_is_the_robotiq_with_its_limits(robot: CR3Robot) -> None:
-    assert DEFAULT_HAND == "robotiq_2f85" and robot.gripper.hand is ROBOTIQ_2F85
+def test_robotiq_loads_with_its_limits_and_masses(robot: CR3Robot) -> None:
+    assert DEFAULT_HAND == "panda" and robot.gripper.hand is ROBOTIQ_2F85
     assert _joint(robot, "finger_joint") == pytest.approx((0.0, 0.8))
     assert _joint(robot, "left_inner_finger_joint") == pytest.approx((-0.8757, 0.0))
     masses = [p.getDynamicsInfo(robot.body_id, link, physicsClientId=robot.client)[0]
@@ -125,5 +125,5 @@ def test_robotiq_picks_a_cube_at_a_known_pose() -> None:
     assert _cube_pick("robotiq_2f85") is Outcome.SUCCESS
 
 
-def test_panda_hand_stays_selectable() -> None:
+def test_default_panda_hand_picks_the_cube() -> None:
     assert _cube_pick("panda") is Outcome.SUCCESS

@@ -39,7 +39,7 @@ def eval_sim(
     aff_mode: AffModeOpt = "expected",
     jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
                                                   "to --jobs 1).")] = 1,
-    gripper: Annotated[str, typer.Option(help="Hand on the CR3: robotiq_2f85 (default) | panda.")] = "robotiq_2f85",
+    gripper: Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")] = "panda",
     wrist_look: Annotated[bool, typer.Option(help="Re-centre each grasp from one wrist depth frame at "
                                                   "pre-grasp (closed-loop correction).")] = True,
 ) -> None:

@@ -23,7 +23,7 @@ def demo(
     rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
     gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
     threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 1,
-    gripper: Annotated[str, typer.Option(help="Hand on the CR3: robotiq_2f85 (default) | panda.")] = "robotiq_2f85",
+    gripper: Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")] = "panda",
     wrist_look: Annotated[bool, typer.Option(help="Re-centre the grasp from one wrist depth frame at "
                                                   "pre-grasp.")] = True,
 ) -> None:

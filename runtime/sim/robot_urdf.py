@@ -3,8 +3,8 @@
 The Dobot CR3 URDF in ``shared/`` is read-only and, as shipped, wrong for pybullet: meshes point at
 ``package://dobot_rviz/...``, every joint has effort/velocity 0 (motors would exert no force), and
 all materials are named ``""`` (pybullet caches materials by name, so the arm renders black). We fix
-those in memory, attach a hand (``hands.py``: the Robotiq 2F-85 from ``shared/`` by default, or
-the Franka hand from ``pybullet_data``) to ``Link6``, add a ``tcp`` link between the finger pads,
+those in memory, attach a hand (``hands.py``: the Franka hand from ``pybullet_data`` by default, or
+the Robotiq 2F-85 from ``shared/``) to ``Link6``, add a ``tcp`` link between the finger pads,
 and write the result into a cache folder keyed by the content hash of the inputs, so shared/ is
 never touched and concurrent processes never see a half-written file.
 
