@@ -41,6 +41,9 @@ class WristConfig:
     height_tolerance: float = 0.003  # surfaces this close to the tips or the table are ignored
     half_opening: float = 0.0425  # only surface between the open pads is considered
     max_shift: float = 0.02  # a larger correction would be a different grasp: keep the plan
+    # Below ~1 px of this frame at grasp distance a correction is noise; skipping it also skips a
+    # re-plan whose IK, warm-started inside pybullet, broke bit-identical restarts of a pick.
+    min_shift: float = 0.001
     min_points: int = 4
 
 
@@ -104,6 +107,8 @@ def recentre(
     shift = float((lows[best] + highs[best]) / 2)
     if abs(shift) > config.max_shift:
         return Correction(grasp, 0.0, f"wrist view: section centre {shift * 100:.1f} cm away, kept")
+    if abs(shift) < config.min_shift:
+        return Correction(grasp, 0.0, "wrist view: already centred")
     position = np.asarray(grasp.position, dtype=np.float64).copy()
     position[:2] += shift * axis
     return Correction(TopDownGrasp(position, grasp.yaw, grasp.width_m), shift,
