@@ -243,7 +243,7 @@ def render_scene(
 ) -> StaticScene:
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
     from craft_e.runtime.encoders.image import crop_box
-    from craft_e.runtime.grasp.predict import predict_grasps
+    from craft_e.runtime.grasp.predict import predict_grasps_rois
     from craft_e.runtime.perception.segment import segment
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.oracle import gt_rois
@@ -265,8 +265,9 @@ def render_scene(
         boxes = [r.box_xywh for r in truth] + [r.box_xywh for r in predicted]
         emb = (encoder.embed_images([crop_box(sharp, tuple(v * rgb_scale for v in b)) for b in boxes]) if boxes
                else np.zeros((0, encoder.dim), dtype=np.float32))  # [N, d]
-        net = {b: [tuple(predict_grasps(b, obs.rgb, obs.depth, r.mask, intrinsics=obs.intrinsics))
-                   for r in predicted] for b in backends}
+        # one network pass per scene, as the robot's pipeline (sim.pipeline.raw_candidates)
+        net = {b: [tuple(g) for g in predict_grasps_rois(b, obs.rgb, obs.depth, [r.mask for r in predicted],
+                                                        intrinsics=obs.intrinsics)] for b in backends}
     gt_emb, pred_emb = emb[: len(truth)], emb[len(truth):]
 
     def fbox(box: tuple[int, int, int, int]) -> tuple[float, float, float, float]:

@@ -6,10 +6,17 @@ centre 224×224 of a 640×480 frame; GG-CNN crops 300×300), invalid depth fille
 in-paint with OpenCV; here nearest valid value), depth in metres minus its mean and clipped to
 ±1, RGB scaled to [0, 1] minus its mean, GR-ConvNet channels ordered (depth, r, g, b). With a
 mask the crop is centred on the region, and grown (then resized) only if the region does not fit.
+
+Several regions of one frame (``predict_grasps_rois``): one network pass over the crop that holds
+them all, then per-region peak picking on the shared maps, each region's quality zeroed outside
+its mask (``detect_grasps``). The pass costs as much as one region's, whatever their number; the
+regions' grasps differ from separate passes only through the crop's scale (a wider crop is
+resized more) and the peak spacing, kept at ``PEAK_SPACING_PX`` image pixels.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import Literal, get_args
@@ -34,6 +41,7 @@ BoolArray = npt.NDArray[np.bool_]
 Float32Array = npt.NDArray[np.float32]
 
 MASK_MARGIN = 1.25  # crop side ≥ 1.25 × the mask's bounding box, so the fingers' free space shows
+PEAK_SPACING_PX = 20  # peaks at least this many image pixels apart (the originals: 20 network px at 1:1)
 
 
 @dataclass(frozen=True)
@@ -145,13 +153,100 @@ def predict_maps(
     if d.ndim != 2:
         raise ValueError(f"depth must be HxW, got shape {d.shape}")
     window = choose_crop((d.shape[0], d.shape[1]), spec.input_size, mask, crop_size)
-    x, holes = prepare_input(spec, rgb, d, window)
-    model = _cached_model(name, str(device))
+    frame = _run(spec, rgb, d, window, device)
+    region = frame.valid if mask is None else window.resample_mask(mask[window.slices]) & frame.valid
+    return frame.maps, window, region
+
+
+@dataclass(frozen=True)
+class FrameMaps:
+    """One network pass over a crop of a frame: smoothed maps, the crop, valid-depth pixels."""
+
+    maps: ProcessedMaps
+    window: CropWindow
+    valid: BoolArray  # [S, S] network pixels with depth (not filled-in holes)
+
+    @property
+    def min_distance(self) -> int:
+        """Peak spacing in network pixels: ``PEAK_SPACING_PX`` image pixels at the crop's scale
+        (20 at 1:1, as in the originals)."""
+        return max(1, round(PEAK_SPACING_PX / self.window.scale))
+
+    def grasps_in(self, mask: BoolArray, max_grasps: int = 5, min_quality: float = 0.2) -> list[Grasp2D]:
+        """The best grasps whose centre lies on ``mask`` (full image ``[H, W]``), best first, in
+        full-image pixels: peaks of the shared quality map zeroed outside the region."""
+        region = self.window.resample_mask(mask[self.window.slices]) & self.valid  # [S, S]
+        if not region.any():
+            return []
+        # ask for spare peaks: resampling can move a centre off a thin mask by a pixel
+        found = detect_grasps(self.maps, 2 * max_grasps, self.min_distance, min_quality, mask=region)
+        grasps = [g for g in (self.window.to_image(g) for g in found) if _centre_in_mask(g, mask)]
+        return grasps[:max_grasps]
+
+
+def _run(spec: GraspModelSpec, rgb: RGBImage | None, depth: Float32Array, window: CropWindow,
+         device: str) -> FrameMaps:
+    """The network on one crop window: smoothed maps and valid-depth network pixels."""
+    x, holes = prepare_input(spec, rgb, depth, window)
+    model = _cached_model(spec.name, str(device))
     with torch.inference_mode():
         out = model(x.to(device))
-    maps = post_process(out, spec.width_scale_px)
-    region = ~holes if mask is None else window.resample_mask(mask[window.slices]) & ~holes
-    return maps, window, region
+    return FrameMaps(post_process(out, spec.width_scale_px), window, ~holes)
+
+
+def predict_frame(
+    name: str,
+    rgb: RGBImage | None,
+    depth: DepthImage,
+    masks: Sequence[BoolArray],
+    crop_size: int | None = None,
+    device: str = "cpu",
+) -> FrameMaps:
+    """One pass of network ``name`` over the square crop holding every mask (their union's box,
+    framed as ``choose_crop`` frames one mask); with no non-empty mask, the centre crop."""
+    d = np.asarray(depth, dtype=np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"depth must be HxW, got shape {d.shape}")
+    union: BoolArray | None = None
+    for m in masks:
+        union = np.asarray(m, dtype=bool) if union is None else union | np.asarray(m, dtype=bool)
+    spec = get_spec(name)
+    window = choose_crop((d.shape[0], d.shape[1]), spec.input_size,
+                         union if union is not None and union.any() else None, crop_size)
+    return _run(spec, rgb, d, window, device)
+
+
+def predict_grasps_rois(
+    backend: str,
+    rgb: RGBImage | None,
+    depth: DepthImage,
+    masks: Sequence[BoolArray],
+    max_grasps: int = 5,
+    *,
+    intrinsics: CameraIntrinsics | None = None,
+    min_quality: float = 0.2,
+    crop_size: int | None = None,
+    device: str = "cpu",
+    antipodal_config: AntipodalConfig | None = None,
+) -> list[list[Grasp2D]]:
+    """``predict_grasps`` for several regions of one frame with one network pass for all of them
+    (see the module docstring): one list per mask, best first, every centre on its mask.
+
+    ``crop_size`` is the crop's side in image pixels (default: what holds every mask, at least
+    the network's input size); the antipodal sampler runs per region.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown grasp backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    d = np.asarray(depth, dtype=np.float32)
+    bool_masks = [np.asarray(m, dtype=bool) for m in masks]
+    if backend == "antipodal":
+        intr = intrinsics or CameraIntrinsics.realsense_d435(d.shape[1], d.shape[0])
+        return [sample_antipodal_grasps(d, m, intr, max_grasps, antipodal_config) for m in bool_masks]
+    present = [m for m in bool_masks if m.any()]
+    if not present:
+        return [[] for _ in bool_masks]
+    frame = predict_frame(backend, rgb, d, present, crop_size, device)
+    return [frame.grasps_in(m, max_grasps, min_quality) if m.any() else [] for m in bool_masks]
 
 
 def predict_grasps(
