@@ -49,7 +49,7 @@ from craft_e.runtime.evaluation.sim_eval import (
 )
 from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, wrap_half_pi
 from craft_e.runtime.sim.env import EnvConfig
-from craft_e.runtime.sim.oracle import OracleConfig, top_surface_points
+from craft_e.runtime.sim.oracle import OracleConfig, rim_grasps, top_surface_points
 from craft_e.runtime.sim.scene import Scene
 
 from ..grounding.settings import GroundingSettings
@@ -131,7 +131,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
                                           high - low + o.ray_spacing))
         if poses:
             return poses
-    return []
+    return rim_grasps(points, o, scene.layout.table_z)  # too wide everywhere: by the rim, if any
 
 
 def gt_grasp_rects(

@@ -416,10 +416,14 @@ def _three_d(
         if not target_mask[row, col]:
             reasons.append("centre off the target")
             continue
-        checked = _check(env, c, surfaces, config, fit=True, ik=True)
-        if checked.fits and checked.reachable:
+        known = c.reachable is not None  # IK does not depend on the surfaces: reuse it
+        checked = _check(env, c, surfaces, config, fit=True, ik=not known)
+        if checked.fits is False:
+            reasons.append(checked.detail)
+            continue
+        if c.reachable if known else checked.reachable:
             return True, ""
-        reasons.append(checked.detail)
+        reasons.append(c.detail if known else checked.detail)
     return False, "; ".join(dict.fromkeys(reasons))
 
 

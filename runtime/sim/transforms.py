@@ -8,6 +8,7 @@ call is one that talks to a physics client, and passes it explicitly.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -22,8 +23,11 @@ def quat_to_matrix(xyzw: Sequence[float] | FloatArray) -> FloatArray:
     return out
 
 
+@lru_cache(maxsize=1024)
 def rpy_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Fixed-axis roll-pitch-yaw (R = Rz Ry Rx, as URDF and pybullet use) → (x, y, z, w)."""
+    """Fixed-axis roll-pitch-yaw (R = Rz Ry Rx, as URDF and pybullet use) → (x, y, z, w).
+
+    Cached (an immutable tuple): IK asks for the same grasp yaw at every waypoint of a pick."""
     x, y, z, w = Rotation.from_euler("xyz", [roll, pitch, yaw]).as_quat()
     return float(x), float(y), float(z), float(w)
 
