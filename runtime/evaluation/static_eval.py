@@ -21,7 +21,8 @@ narrow axis; for round footprints (narrow extent >= 75% of the long one) at ever
 direction. Each is projected into the image with ``pose_to_rect``; its opening is the section plus
 1 cm of finger clearance per side (capped at the gripper's opening), its jaw size half of that, as
 the networks' rectangles have. Only if no parallel-sided section exists are the first fitting
-sections used (the oracle's fallback).
+sections used (the oracle's fallback), and if even those are too wide (a bowl, a plate), the radial
+grasps across its rim (``sim.oracle.rim_grasps``), as a person would take it.
 
 Noise (``--noise grasp=0.1,box=0.2``): per level, grasp scores get ``perturb_grasp_scores`` and
 ROI boxes ``jitter_box`` from ``evaluation/robustness.py`` (the box the grounder crops and the
