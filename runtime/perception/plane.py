@@ -73,21 +73,17 @@ def fit_plane(points: FloatArray, config: PlaneFitConfig | None = None) -> tuple
         if len(pts) <= cfg.max_samples
         else pts[rng.choice(len(pts), cfg.max_samples, replace=False)]
     )
-    # the same random triples as one candidate per iteration, scored all at once: [k, 3] normals
-    triples = sample[np.stack([rng.choice(len(sample), 3, replace=False) for _ in range(cfg.iterations)])]
-    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])  # [k, 3]
-    norms = np.linalg.norm(normals, axis=1)  # [k]
-    ok = norms >= 1e-9  # collinear triples give no plane
-    if not ok.any():
+    best: Plane | None = None
+    best_count = -1
+    for _ in range(cfg.iterations):
+        candidate = _plane_through(sample[rng.choice(len(sample), 3, replace=False)])
+        if candidate is None:
+            continue
+        count = int(np.count_nonzero(np.abs(candidate.distance(sample)) < cfg.inlier_threshold))
+        if count > best_count:
+            best, best_count = candidate, count
+    if best is None:
         raise ValueError("all RANSAC samples were degenerate (collinear points)")
-    normals = normals[ok] / norms[ok, None]
-    offsets = -np.einsum("kc,kc->k", normals, triples[ok, 0])  # [k]
-    counts = np.zeros(len(normals), dtype=np.int64)
-    for start in range(0, len(sample), 4096):  # [4096, k] distances at a time: bounded memory
-        d = sample[start : start + 4096] @ normals.T + offsets
-        counts += np.count_nonzero(np.abs(d) < cfg.inlier_threshold, axis=0)
-    i = int(np.argmax(counts))  # first of the best, as the sequential loop kept
-    best = Plane(normals[i], float(offsets[i]))
     inliers = sample[np.abs(best.distance(sample)) < cfg.inlier_threshold]
     refined = _least_squares(inliers) if len(inliers) >= 3 else best
     return refined, len(inliers)

@@ -66,17 +66,36 @@ def _colour_foreground(
     The table colour model is the median of the pixels that lie on the plane, with a robust
     spread (median absolute deviation) so a textured table raises its own threshold.
     """
-    colours = rgb[on_table].astype(np.float64)  # [n, 3]
-    if len(colours) == 0:
+    colours = rgb[on_table]  # [n, 3] uint8
+    n = len(colours)
+    if n == 0:
         return np.zeros(near_plane.shape, dtype=bool)
-    median = np.median(colours, axis=0)
-    mad = float(np.median(np.linalg.norm(colours - median, axis=1)))
-    threshold = max(config.colour_distance, config.colour_spread_factor * 1.4826 * mad)
-    diff = rgb.astype(np.float64) - median  # [H, W, 3]
-    odd = (np.einsum("hwc,hwc->hw", diff, diff) > threshold**2) & near_plane  # squared: no sqrt
+    # Exact integer arithmetic on doubled values (the median of integers is a multiple of 1/2):
+    # the same median, spread and comparisons as in float64, without float copies of the image.
+    median2 = np.array([_doubled_median(colours[:, c], n) for c in range(3)], dtype=np.int64)  # [3]
+    dist4 = _doubled_sq_distance(colours, median2)  # [n] 4 x squared distance, exact
+    middle = np.partition(dist4, [(n - 1) // 2, n // 2])  # the median's two middle ranks
+    mad = (np.sqrt(middle[(n - 1) // 2] / 4.0) + np.sqrt(middle[n // 2] / 4.0)) / 2.0
+    threshold = max(config.colour_distance, config.colour_spread_factor * 1.4826 * float(mad))
+    odd = (_doubled_sq_distance(rgb, median2) > 4.0 * threshold**2) & near_plane  # [H, W]
     # colour alone is noisy at object borders and texture speckles: keep only solid regions
     opened: BoolMask = ndimage.binary_opening(odd, structure=_EIGHT_CONNECTED)
     return opened
+
+
+def _doubled_median(values: npt.NDArray[np.uint8], n: int) -> int:
+    """Twice the median of ``n`` uint8 values (an integer), from their histogram."""
+    cum = np.cumsum(np.bincount(values, minlength=256))
+    low = int(np.searchsorted(cum, (n - 1) // 2 + 1))  # value of rank (n - 1) // 2
+    high = int(np.searchsorted(cum, n // 2 + 1))  # value of rank n // 2
+    return low + high
+
+
+def _doubled_sq_distance(rgb: npt.NDArray[np.uint8], median2: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """``4 * |rgb - median|^2`` per pixel ``[...]``, exact in integers."""
+    d = 2 * rgb.astype(np.int32) - median2.astype(np.int32)  # [..., 3]
+    out: npt.NDArray[np.int64] = np.einsum("...c,...c->...", d, d).astype(np.int64)
+    return out
 
 
 def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentation:
