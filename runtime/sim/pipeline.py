@@ -11,15 +11,19 @@ the depth, the predicted mask, its own kinematics):
 
 1. **ROIs**: ``predicted`` (class-agnostic RGB-D segmentation) or ``oracle`` (the simulator's
    segmentation buffer, one ROI per visible object).
-2. **Grasps** per ROI: a grasp network (``grconvnet``, ``ggcnn``, ``ggcnn2``) or the analytic
-   ``antipodal`` sampler restricted to the ROI mask, or the ``oracle`` grasp of the body the ROI
-   covers most. Each rectangle becomes a top-down pose through the depth and the intrinsics.
+2. **Grasps** per ROI: a grasp network (``grconvnet``, ``ggcnn``, ``ggcnn2``) run once per scene
+   over the crop holding every ROI, each ROI taking the peaks of the shared maps on its mask
+   (``grasp.predict.predict_grasps_rois``); or the analytic ``antipodal`` sampler restricted to
+   the ROI mask, or the ``oracle`` grasp of the body the ROI covers most. Each rectangle becomes
+   a top-down pose through the depth and the intrinsics.
 3. **Grasp checks** (on by default; ``PipelineConfig.fit_filter`` / ``ik_filter``): best-scoring
    first, keep the first grasp under which the object fits the open fingers (``finger_check``:
    the section of the ROI's depth surface above the finger tips, across a pad-wide strip) and
    whose whole pick (pre-grasp, descent, lift, transport, release) has IK solutions. Its score is
    the ROI's grasp confidence, so ``E_grasp = -log(score)`` is the energy of a grasp the robot
    can execute; an ROI with no such grasp is excluded from grounding, as the paper prescribes.
+   ``perceive`` checks every ROI (the evaluation reports each one's usable grasp); the robot's
+   own path (``sim.choose``) plans IK only for the grasps grounding chooses, with the same result.
 4. **Embeddings** of the ROI crops (the ConSE image encoder), then ``Grounder.ground(verb, rois)``
    per method over the scene vocabulary (the plain names of the 74 sim objects).
 5. **Execution** of the chosen ROI's grasp with ``execute_pick``, judged from physics.
