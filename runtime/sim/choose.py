@@ -107,6 +107,7 @@ def perceive_for_pick(
         _stage,
         finger_check,
         raw_candidates,
+        roi_points,
         tip_height,
         torch_threads,
     )
@@ -129,7 +130,7 @@ def perceive_for_pick(
         world = obs.points_world()  # [H, W, 3]
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
         for i, roi in enumerate(rois):
-            material = world[roi.mask & raised]  # [m, 3]
+            material = roi_points(world, raised, roi)  # [m, 3]
             fitting = [c for c in raw[i] if c.pose is not None and (not config.fit_filter or finger_check(
                 material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0])]
             box = tuple(float(v) for v in roi.box_xywh)

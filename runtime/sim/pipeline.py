@@ -348,6 +348,15 @@ def raw_candidates(
     return [_with_poses(obs, r) for r in rects]
 
 
+def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
+    """The ROI's raised depth points ``[m, 3]`` (row-major order, as ``world[mask & raised]``),
+    gathered inside its box only: the grasp checks need them for every ROI."""
+    x, y, w, h = roi.box_xywh
+    box = (slice(y, y + h), slice(x, x + w))
+    out: FloatArray = world[box][roi.mask[box] & raised[box]]
+    return out
+
+
 @dataclass(frozen=True)
 class _Surfaces:
     """Depth points a grasp check needs: one object's surface above the table."""
@@ -484,7 +493,7 @@ def perceive(
     with _stage(timings, "grasp_checks"):
         world = obs.points_world()  # [H, W, 3]
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
-        checked = [_usable(env, raw[i], _Surfaces(world[roi.mask & raised], table_z), config)
+        checked = [_usable(env, raw[i], _Surfaces(roi_points(world, raised, roi), table_z), config)
                    for i, roi in enumerate(rois)]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]

@@ -18,8 +18,20 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def quat_to_matrix(xyzw: Sequence[float] | FloatArray) -> FloatArray:
-    """3x3 rotation of a pybullet-order (x, y, z, w) quaternion."""
+    """3x3 rotation of a pybullet-order (x, y, z, w) quaternion.
+
+    A tuple (what ``rpy_to_quat`` and pybullet return) is looked up in a cache and gets a
+    read-only matrix: IK converts the same grasp orientation at every waypoint of a pick."""
+    if isinstance(xyzw, tuple):
+        return _cached_matrix(tuple(float(v) for v in xyzw))
     out: FloatArray = Rotation.from_quat(np.asarray(xyzw, dtype=np.float64)).as_matrix()
+    return out
+
+
+@lru_cache(maxsize=1024)
+def _cached_matrix(xyzw: tuple[float, ...]) -> FloatArray:
+    out: FloatArray = Rotation.from_quat(np.asarray(xyzw, dtype=np.float64)).as_matrix()
+    out.flags.writeable = False
     return out
 
 
