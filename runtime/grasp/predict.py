@@ -7,11 +7,12 @@ in-paint with OpenCV; here nearest valid value), depth in metres minus its mean 
 ±1, RGB scaled to [0, 1] minus its mean, GR-ConvNet channels ordered (depth, r, g, b). With a
 mask the crop is centred on the region, and grown (then resized) only if the region does not fit.
 
-Several regions of one frame (``predict_grasps_rois``): one network pass over the crop that holds
-them all, then per-region peak picking on the shared maps, each region's quality zeroed outside
-its mask (``detect_grasps``). The pass costs as much as one region's, whatever their number; the
-regions' grasps differ from separate passes only through the crop's scale (a wider crop is
-resized more) and the peak spacing, kept at ``PEAK_SPACING_PX`` image pixels.
+Several regions of one frame (``predict_grasps_rois``): one network pass over the window that holds
+them all, at the image's own scale (the networks are fully convolutional), then per-region peak
+picking on the shared maps, each region's quality zeroed outside its mask (``detect_grasps``). The
+regions' grasps differ from separate passes only through context (input normalisation over the
+larger window) and, for regions too large for one 224 px crop, scale; peaks stay
+``PEAK_SPACING_PX`` image pixels apart.
 """
 
 from __future__ import annotations
@@ -58,6 +59,10 @@ class CropWindow:
         """Image pixels per network pixel."""
         return self.side / self.out_size
 
+    @property
+    def out_hw(self) -> tuple[int, int]:
+        return self.out_size, self.out_size
+
     def to_image(self, grasp: Grasp2D) -> Grasp2D:
         """Network-pixel grasp → full-image grasp (pixel centres map as in bilinear resizing)."""
         s = self.scale
@@ -101,24 +106,72 @@ def choose_crop(
     return CropWindow(x0, y0, side, out_size)
 
 
-def _resize(img: Float32Array, out_size: int) -> torch.Tensor:
-    """``[C, H, W]`` → ``[1, C, S, S]`` bilinear (antialiased when shrinking, like skimage)."""
+def _resize(img: Float32Array, out_hw: tuple[int, int]) -> torch.Tensor:
+    """``[C, H, W]`` → ``[1, C, h, w]`` bilinear (antialiased when shrinking, like skimage)."""
     t = torch.from_numpy(np.ascontiguousarray(img)).unsqueeze(0)  # [1, C, H, W]
-    if t.shape[-1] == out_size and t.shape[-2] == out_size:
+    if (t.shape[-2], t.shape[-1]) == out_hw:
         return t
-    shrink = t.shape[-1] > out_size
-    return F.interpolate(
-        t, size=(out_size, out_size), mode="bilinear", align_corners=False, antialias=shrink
-    )
+    shrink = t.shape[-1] > out_hw[1]
+    return F.interpolate(t, size=out_hw, mode="bilinear", align_corners=False, antialias=shrink)
+
+
+@dataclass(frozen=True)
+class FrameWindow:
+    """A rectangular image window ``[y0:y0+height, x0:x0+width]`` fed at native scale (one
+    network pixel per image pixel): the frame pass that keeps the per-ROI crops' scale."""
+
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+    scale = 1.0  # image pixels per network pixel
+
+    @property
+    def out_hw(self) -> tuple[int, int]:
+        return self.height, self.width
+
+    @property
+    def slices(self) -> tuple[slice, slice]:
+        return slice(self.y0, self.y0 + self.height), slice(self.x0, self.x0 + self.width)
+
+    def to_image(self, grasp: Grasp2D) -> Grasp2D:
+        return grasp.scaled(1.0, (float(self.x0), float(self.y0)))
+
+    def resample_mask(self, crop_mask: BoolArray) -> BoolArray:
+        return crop_mask
+
+
+FRAME_MARGIN_PX = 40  # context around the ROIs' union: the open fingers' half-span at 0.7 m
+FRAME_MULTIPLE = 12  # window sides the networks map back to the same size (GG-CNN: 12, GR-ConvNet: 4)
+
+
+def frame_window(image_hw: tuple[int, int], mask: BoolArray, min_side: int = 224) -> FrameWindow:
+    """The native-scale window holding ``mask`` with ``FRAME_MARGIN_PX`` around it, each side at
+    least ``min_side`` and a multiple of ``FRAME_MULTIPLE`` (capped by the image), inside it."""
+    h, w = image_hw
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        raise ValueError("mask is empty: no region to grasp")
+
+    def span(lo: int, hi: int, size: int) -> tuple[int, int]:
+        want = max(hi - lo + 2 * FRAME_MARGIN_PX, min_side)
+        want = min(-(-want // FRAME_MULTIPLE) * FRAME_MULTIPLE, size - size % FRAME_MULTIPLE)
+        start = int(np.clip(round((lo + hi) / 2 - want / 2), 0, size - want))
+        return start, want
+
+    x0, width = span(int(cols.min()), int(cols.max()) + 1, w)
+    y0, height = span(int(rows.min()), int(rows.max()) + 1, h)
+    return FrameWindow(x0, y0, width, height)
 
 
 def prepare_input(
-    spec: GraspModelSpec, rgb: RGBImage | None, depth: DepthImage, window: CropWindow
+    spec: GraspModelSpec, rgb: RGBImage | None, depth: DepthImage, window: CropWindow | FrameWindow
 ) -> tuple[torch.Tensor, BoolArray]:
     """Full image → network tensor ``[1, C, S, S]`` and the resized hole mask ``[S, S]``."""
     sl = window.slices
     d, holes = fill_invalid_depth(np.asarray(depth, dtype=np.float32)[sl])
-    d_t = _resize(d[None], window.out_size)  # [1, 1, S, S]
+    d_t = _resize(d[None], window.out_hw)  # [1, 1, S, S]
     d_t = torch.clamp(d_t - d_t.mean(), -1.0, 1.0)
     hole_mask = window.resample_mask(holes)
     if spec.net_class.modality == "depth":
@@ -128,7 +181,7 @@ def prepare_input(
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[:2] != np.asarray(depth).shape:
         raise ValueError(f"rgb must be HxWx3 matching the depth image, got {rgb.shape}")
     c = rgb[sl].astype(np.float32).transpose(2, 0, 1) / 255.0  # [3, side, side]
-    c_t = _resize(c, window.out_size)  # [1, 3, S, S]
+    c_t = _resize(c, window.out_hw)  # [1, 3, S, S]
     c_t = c_t - c_t.mean()
     return torch.cat([d_t, c_t], dim=1), hole_mask  # [1, 4, S, S]: depth, r, g, b
 
@@ -163,7 +216,7 @@ class FrameMaps:
     """One network pass over a crop of a frame: smoothed maps, the crop, valid-depth pixels."""
 
     maps: ProcessedMaps
-    window: CropWindow
+    window: CropWindow | FrameWindow
     valid: BoolArray  # [S, S] network pixels with depth (not filled-in holes)
 
     @property
@@ -184,8 +237,8 @@ class FrameMaps:
         return grasps[:max_grasps]
 
 
-def _run(spec: GraspModelSpec, rgb: RGBImage | None, depth: Float32Array, window: CropWindow,
-         device: str) -> FrameMaps:
+def _run(spec: GraspModelSpec, rgb: RGBImage | None, depth: Float32Array,
+         window: CropWindow | FrameWindow, device: str) -> FrameMaps:
     """The network on one crop window: smoothed maps and valid-depth network pixels."""
     x, holes = prepare_input(spec, rgb, depth, window)
     model = _cached_model(spec.name, str(device))
@@ -201,9 +254,17 @@ def predict_frame(
     masks: Sequence[BoolArray],
     crop_size: int | None = None,
     device: str = "cpu",
+    *,
+    native: bool = True,
 ) -> FrameMaps:
-    """One pass of network ``name`` over the square crop holding every mask (their union's box,
-    framed as ``choose_crop`` frames one mask); with no non-empty mask, the centre crop."""
+    """One pass of network ``name`` over the window holding every mask.
+
+    ``native`` (default): the union's box plus a margin at the image's own scale
+    (``frame_window``), the scale the per-ROI crops had for all but the largest objects.
+    Otherwise the square crop ``choose_crop`` frames the union with, resized to the network's
+    input size (one pass at the cost of one ROI's, but objects shrink ~2x in a full scene:
+    measured worse on the static protocol, BENCHMARKS.md). With no non-empty mask, the centre
+    crop."""
     d = np.asarray(depth, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"depth must be HxW, got shape {d.shape}")
@@ -211,8 +272,13 @@ def predict_frame(
     for m in masks:
         union = np.asarray(m, dtype=bool) if union is None else union | np.asarray(m, dtype=bool)
     spec = get_spec(name)
-    window = choose_crop((d.shape[0], d.shape[1]), spec.input_size,
-                         union if union is not None and union.any() else None, crop_size)
+    hw = (d.shape[0], d.shape[1])
+    has_union = union is not None and bool(union.any())
+    window: CropWindow | FrameWindow
+    if native and has_union and union is not None:
+        window = frame_window(hw, union, spec.input_size)
+    else:
+        window = choose_crop(hw, spec.input_size, union if has_union else None, crop_size)
     return _run(spec, rgb, d, window, device)
 
 
@@ -228,12 +294,12 @@ def predict_grasps_rois(
     crop_size: int | None = None,
     device: str = "cpu",
     antipodal_config: AntipodalConfig | None = None,
+    native: bool = True,
 ) -> list[list[Grasp2D]]:
     """``predict_grasps`` for several regions of one frame with one network pass for all of them
     (see the module docstring): one list per mask, best first, every centre on its mask.
 
-    ``crop_size`` is the crop's side in image pixels (default: what holds every mask, at least
-    the network's input size); the antipodal sampler runs per region.
+    ``native`` and ``crop_size``: see ``predict_frame``; the antipodal sampler runs per region.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown grasp backend {backend!r}; choose one of {', '.join(BACKENDS)}")
@@ -245,7 +311,7 @@ def predict_grasps_rois(
     present = [m for m in bool_masks if m.any()]
     if not present:
         return [[] for _ in bool_masks]
-    frame = predict_frame(backend, rgb, d, present, crop_size, device)
+    frame = predict_frame(backend, rgb, d, present, crop_size, device, native=native)
     return [frame.grasps_in(m, max_grasps, min_quality) if m.any() else [] for m in bool_masks]
 
 
