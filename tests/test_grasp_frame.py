@@ -8,6 +8,8 @@ give what the per-ROI path gave.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,7 @@ from craft_e.runtime.grasp.predict import (
     PEAK_SPACING_PX,
     CropWindow,
     FrameMaps,
+    frame_window,
     predict_frame,
     predict_grasps,
     predict_grasps_rois,
@@ -93,11 +96,30 @@ def test_empty_and_missing_masks() -> None:
 def test_single_roi_frame_pass_equals_the_per_roi_pass(name: str) -> None:
     scene = bar_scene(angle_deg=60.0, width_m=0.03, length_m=0.12, height_m=0.03)
     mask = scene.masks[0]
-    frame = predict_frame(name, scene.rgb, scene.depth, [mask])
-    assert frame.window.scale == 1.0  # the same crop as the per-ROI path: spacing 20 px
-    rois = predict_grasps_rois(name, scene.rgb, scene.depth, [mask], max_grasps=3, min_quality=0.05)
-    assert rois == [predict_grasps(name, scene.rgb, scene.depth, mask, max_grasps=3, min_quality=0.05)]
-    assert rois[0]
+    # resized to the network's size, one ROI gets exactly the per-ROI crop: identical grasps
+    square = predict_frame(name, scene.rgb, scene.depth, [mask], native=False)
+    assert square.window.scale == 1.0  # a small ROI: the 224 px crop at 1:1, spacing 20 px
+    rois = predict_grasps_rois(name, scene.rgb, scene.depth, [mask], max_grasps=3, min_quality=0.05, native=False)
+    per_roi = predict_grasps(name, scene.rgb, scene.depth, mask, max_grasps=3, min_quality=0.05)
+    assert rois == [per_roi] and per_roi
+    # at native scale (the default) the window differs a little: the best grasp barely moves
+    best = predict_grasps_rois(name, scene.rgb, scene.depth, [mask], max_grasps=3, min_quality=0.05)[0][0]
+    assert math.hypot(best.center_xy[0] - per_roi[0].center_xy[0], best.center_xy[1] - per_roi[0].center_xy[1]) < 6.0
+    assert abs(math.sin(best.angle_rad - per_roi[0].angle_rad)) < math.sin(math.radians(15.0))
+
+
+def test_frame_window_holds_every_roi_at_native_scale() -> None:
+    mask = np.zeros((480, 640), dtype=bool)
+    mask[100:160, 30:90] = True
+    mask[300:420, 500:630] = True
+    win = frame_window((480, 640), mask)
+    assert win.scale == 1.0 and win.width % 12 == 0 and win.height % 12 == 0
+    assert win.x0 >= 0 and win.x0 + win.width <= 640 and win.y0 >= 0 and win.y0 + win.height <= 480
+    rows, cols = win.slices
+    assert mask[rows, cols].sum() == mask.sum()  # nothing cut off
+    small = np.zeros((480, 640), dtype=bool)
+    small[200:210, 300:310] = True
+    assert frame_window((480, 640), small).width >= 224  # the networks' own input size at least
 
 
 def test_one_pass_serves_several_rois() -> None:
