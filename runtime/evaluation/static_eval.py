@@ -21,7 +21,8 @@ narrow axis; for round footprints (narrow extent >= 75% of the long one) at ever
 direction. Each is projected into the image with ``pose_to_rect``; its opening is the section plus
 1 cm of finger clearance per side (capped at the gripper's opening), its jaw size half of that, as
 the networks' rectangles have. Only if no parallel-sided section exists are the first fitting
-sections used (the oracle's fallback).
+sections used (the oracle's fallback), and if even those are too wide (a bowl, a plate), the radial
+grasps across its rim (``sim.oracle.rim_grasps``), as a person would take it.
 
 Noise (``--noise grasp=0.1,box=0.2``): per level, grasp scores get ``perturb_grasp_scores`` and
 ROI boxes ``jitter_box`` from ``evaluation/robustness.py`` (the box the grounder crops and the
@@ -49,7 +50,7 @@ from craft_e.runtime.evaluation.sim_eval import (
 )
 from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, wrap_half_pi
 from craft_e.runtime.sim.env import EnvConfig
-from craft_e.runtime.sim.oracle import OracleConfig, top_surface_points
+from craft_e.runtime.sim.oracle import OracleConfig, rim_grasps, top_surface_points
 from craft_e.runtime.sim.scene import Scene
 
 from ..grounding.settings import GroundingSettings
@@ -131,7 +132,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
                                           high - low + o.ray_spacing))
         if poses:
             return poses
-    return []
+    return rim_grasps(points, o, scene.layout.table_z)  # too wide everywhere: by the rim, if any
 
 
 def gt_grasp_rects(
@@ -243,7 +244,7 @@ def render_scene(
 ) -> StaticScene:
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
     from craft_e.runtime.encoders.image import crop_box
-    from craft_e.runtime.grasp.predict import predict_grasps
+    from craft_e.runtime.grasp.predict import predict_grasps_rois
     from craft_e.runtime.perception.segment import segment
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.oracle import gt_rois
@@ -265,8 +266,9 @@ def render_scene(
         boxes = [r.box_xywh for r in truth] + [r.box_xywh for r in predicted]
         emb = (encoder.embed_images([crop_box(sharp, tuple(v * rgb_scale for v in b)) for b in boxes]) if boxes
                else np.zeros((0, encoder.dim), dtype=np.float32))  # [N, d]
-        net = {b: [tuple(predict_grasps(b, obs.rgb, obs.depth, r.mask, intrinsics=obs.intrinsics))
-                   for r in predicted] for b in backends}
+        # one network pass per scene, as the robot's pipeline (sim.pipeline.raw_candidates)
+        net = {b: [tuple(g) for g in predict_grasps_rois(b, obs.rgb, obs.depth, [r.mask for r in predicted],
+                                                        intrinsics=obs.intrinsics)] for b in backends}
     gt_emb, pred_emb = emb[: len(truth)], emb[len(truth):]
 
     def fbox(box: tuple[int, int, int, int]) -> tuple[float, float, float, float]:

@@ -9,6 +9,7 @@ world (robot-base) frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache, cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -41,17 +42,38 @@ class Observation:
         return h, w
 
     def points_camera(self) -> npt.NDArray[np.float64]:
-        """Per-pixel 3D points in the camera frame, ``[H, W, 3]`` (NaN where depth is invalid)."""
-        h, w = self.shape
-        v, u = np.mgrid[0:h, 0:w]
-        z = self.depth.astype(np.float64)
-        z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
-        uv = np.stack([u, v], axis=-1).astype(np.float64)
-        return self.intrinsics.deproject(uv, z)
+        """Per-pixel 3D points in the camera frame, ``[H, W, 3]`` (NaN where depth is invalid).
+
+        Computed once per frame and shared (read-only): segmentation and the grasp checks both
+        need them."""
+        return self._points_camera
 
     def points_world(self) -> npt.NDArray[np.float64]:
-        """Per-pixel 3D points in the world frame, ``[H, W, 3]`` (NaN where depth is invalid)."""
-        pts = self.points_camera()
-        rotation, translation = self.cam_to_world[:3, :3], self.cam_to_world[:3, 3]
-        out: npt.NDArray[np.float64] = pts @ rotation.T + translation
+        """Per-pixel 3D points in the world frame, ``[H, W, 3]`` (NaN where depth is invalid);
+        computed once per frame and shared (read-only)."""
+        return self._points_world
+
+    @cached_property
+    def _points_camera(self) -> npt.NDArray[np.float64]:
+        h, w = self.shape
+        z = self.depth.astype(np.float64)
+        z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
+        out = self.intrinsics.deproject(_pixel_grid(h, w), z)
+        out.flags.writeable = False
         return out
+
+    @cached_property
+    def _points_world(self) -> npt.NDArray[np.float64]:
+        rotation, translation = self.cam_to_world[:3, :3], self.cam_to_world[:3, 3]
+        out: npt.NDArray[np.float64] = self._points_camera @ rotation.T + translation
+        out.flags.writeable = False
+        return out
+
+
+@cache
+def _pixel_grid(h: int, w: int) -> npt.NDArray[np.float64]:
+    """``[H, W, 2]`` pixel coordinates (u, v), read-only, one per image size."""
+    v, u = np.mgrid[0:h, 0:w]
+    uv = np.stack([u, v], axis=-1).astype(np.float64)
+    uv.flags.writeable = False
+    return uv

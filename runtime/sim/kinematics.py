@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -35,13 +36,24 @@ def rpy_matrix(rpy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     )
 
 
-def axis_angle_matrix(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
-    """Rodrigues rotation about a unit axis."""
+def cross_matrices(axis: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """``(K, K @ K)`` of the unit axis: the angle-independent parts of Rodrigues' formula."""
     k = axis / np.linalg.norm(axis)
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    out: npt.NDArray[np.float64] = (
-        np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
-    )
+    return kx, kx @ kx
+
+
+def axis_angle_matrix(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
+    """Rodrigues rotation about a unit axis."""
+    kx, kx2 = cross_matrices(axis)
+    return _rodrigues(kx, kx2, angle)
+
+
+_EYE3 = np.eye(3)
+
+
+def _rodrigues(kx: npt.NDArray[np.float64], kx2: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
+    out: npt.NDArray[np.float64] = _EYE3 + np.sin(angle) * kx + (1.0 - np.cos(angle)) * kx2
     return out
 
 
@@ -69,11 +81,17 @@ class SerialChain:
     def movable_names(self) -> list[str]:
         return [j.name for j in self.joints if j.movable]
 
+    @cached_property
+    def _rodrigues_parts(self) -> tuple[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]], ...]:
+        """Per joint, ``cross_matrices`` of its axis: computed once, not on every call (the grasp
+        checks run forward kinematics thousands of times per scene)."""
+        return tuple(cross_matrices(j.axis) for j in self.joints)
+
     def forward(self, q: npt.NDArray[np.float64]) -> Mat4:
         """Pose of the end link in the root frame for the movable joint values ``q``."""
         pose = np.eye(4)
         values = iter(np.asarray(q, dtype=np.float64))
-        for joint in self.joints:
+        for joint, (kx, kx2) in zip(self.joints, self._rodrigues_parts, strict=True):
             pose = pose @ joint.origin
             if not joint.movable:
                 continue
@@ -82,7 +100,7 @@ class SerialChain:
             if joint.kind == "prismatic":
                 motion[:3, 3] = joint.axis * value
             else:
-                motion[:3, :3] = axis_angle_matrix(joint.axis, value)
+                motion[:3, :3] = _rodrigues(kx, kx2, value)
             pose = pose @ motion
         return pose
 

@@ -43,6 +43,9 @@ class OracleConfig:
     strip_half_width: float = 0.01  # m: half the finger pad size along the object's long axis
     slide_step: float = 0.01  # m between candidate centres along the long axis
     taper_tolerance: float = 0.015  # m the width may change over the pad length
+    rim_depth: float = 0.03  # m an inner finger goes below a rim (the executor's insertion depth)
+    rim_floor_clearance: float = 0.007  # m: finger tips stop 4 mm above the table, 3 mm tolerance
+    rim_yaw_step_deg: float = 15.0  # directions tried around a vessel's rim
 
 
 def top_surface_points(scene: Scene, body_id: int, spacing: float) -> FloatArray:
@@ -78,7 +81,8 @@ def oracle_grasp(
     hammer the handle next to the head. Parallel sides matter: the edge of a ball or a wide can
     fits the opening too, but it is a chord on a slope and tends to squeeze out of the fingers;
     only when no parallel-sided section exists is the first section that fits returned (and
-    physics decides).
+    physics decides). An object too wide for every section (a bowl, a plate) is grasped by its
+    rim (``rim_grasps``), if it has one.
     The position is the top surface next to the grasp centre, as a grasp network would report
     from depth; the executor adds its own insertion depth.
     """
@@ -109,7 +113,56 @@ def oracle_grasp(
         yaw = wrap_half_pi(math.atan2(float(narrow_axis[1]), float(narrow_axis[0])))
         width = high - low + cfg.ray_spacing  # rays sample; the true edge lies up to one step out
         return TopDownGrasp(position=np.array([center[0], center[1], top]), yaw=yaw, width_m=width)
-    return None
+    rims = rim_grasps(points, cfg, scene.layout.table_z)  # too wide everywhere: a bowl or a plate is taken by its rim
+    return rims[0] if rims else None
+
+
+def rim_grasps(points: FloatArray, cfg: OracleConfig, table_z: float) -> list[TopDownGrasp]:
+    """Radial grasps across the wall of an open vessel, one per direction where one exists.
+
+    How people (and Cornell-trained networks) take a bowl, a plate or a pitcher too wide for
+    the hand: one finger outside, one inside, closing across the rim. ``points`` ``[n, 3]`` are
+    the top surface from vertical rays, so the inside of a vessel shows as its deep floor. Along
+    each direction from the footprint's centroid, the wall is the run of surface, from the
+    outermost point inwards, that stands within ``rim_depth`` of the rim's top (and higher than
+    the finger tips can go, ``rim_floor_clearance`` above ``table_z``); it is a rim if it
+    fits the opening and the surface then drops (or stops) for a finger's room inside it
+    (``2 * strip_half_width``). A solid object has no drop and gets none. ``width_m`` is the
+    wall's section; ``position`` the top of the rim above the grasp centre.
+    """
+    xy = points[:, :2]
+    centroid = xy.mean(axis=0)
+    rel = xy - centroid  # [n, 2]
+    limit = cfg.max_width - 2 * cfg.side_clearance
+    grasps: list[TopDownGrasp] = []
+    for k in range(round(360.0 / cfg.rim_yaw_step_deg)):
+        theta = math.radians(k * cfg.rim_yaw_step_deg)
+        u = np.array([math.cos(theta), math.sin(theta)])
+        radial, across = rel @ u, rel @ np.array([-u[1], u[0]])
+        ray = (np.abs(across) <= cfg.strip_half_width) & (radial > 0)
+        if np.count_nonzero(ray) < 3:
+            continue
+        r, z = radial[ray], points[ray, 2]
+        order = np.argsort(-r)  # outermost first
+        r, z = r[order], z[order]
+        crest = float(z[r >= r[0] - limit].max())
+        floor = max(crest - cfg.rim_depth, table_z + cfg.rim_floor_clearance)  # what the tips pass
+        high = z > floor
+        # the wall: from the outermost point inwards while the surface stays high and unbroken
+        breaks = np.nonzero(~high | (np.concatenate([[0.0], -np.diff(r)]) > 2 * cfg.ray_spacing))[0]
+        end = int(breaks[0]) if breaks.size else len(r)
+        if end in (0, len(r)):
+            continue  # the outermost point is low, or no inside to reach into
+        r_in, r_out = float(r[end - 1]), float(r[0])
+        if r_out - r_in + cfg.ray_spacing > limit:
+            continue  # a wall wider than the hand
+        room = (r < r_in) & (r >= r_in - 2 * cfg.strip_half_width)
+        if np.any(z[room] > floor):
+            continue  # the surface rises again right inside: no room for the inner finger
+        mid = centroid + (r_in + r_out) / 2 * u
+        grasps.append(TopDownGrasp(position=np.array([mid[0], mid[1], crest]), yaw=wrap_half_pi(theta),
+                                   width_m=r_out - r_in + cfg.ray_spacing))
+    return grasps
 
 
 def cross_section(

@@ -11,15 +11,19 @@ the depth, the predicted mask, its own kinematics):
 
 1. **ROIs**: ``predicted`` (class-agnostic RGB-D segmentation) or ``oracle`` (the simulator's
    segmentation buffer, one ROI per visible object).
-2. **Grasps** per ROI: a grasp network (``grconvnet``, ``ggcnn``, ``ggcnn2``) or the analytic
-   ``antipodal`` sampler restricted to the ROI mask, or the ``oracle`` grasp of the body the ROI
-   covers most. Each rectangle becomes a top-down pose through the depth and the intrinsics.
+2. **Grasps** per ROI: a grasp network (``grconvnet``, ``ggcnn``, ``ggcnn2``) run once per scene
+   over the crop holding every ROI, each ROI taking the peaks of the shared maps on its mask
+   (``grasp.predict.predict_grasps_rois``); or the analytic ``antipodal`` sampler restricted to
+   the ROI mask, or the ``oracle`` grasp of the body the ROI covers most. Each rectangle becomes
+   a top-down pose through the depth and the intrinsics.
 3. **Grasp checks** (on by default; ``PipelineConfig.fit_filter`` / ``ik_filter``): best-scoring
    first, keep the first grasp under which the object fits the open fingers (``finger_check``:
    the section of the ROI's depth surface above the finger tips, across a pad-wide strip) and
    whose whole pick (pre-grasp, descent, lift, transport, release) has IK solutions. Its score is
    the ROI's grasp confidence, so ``E_grasp = -log(score)`` is the energy of a grasp the robot
    can execute; an ROI with no such grasp is excluded from grounding, as the paper prescribes.
+   ``perceive`` checks every ROI (the evaluation reports each one's usable grasp); the robot's
+   own path (``sim.choose``) plans IK only for the grasps grounding chooses, with the same result.
 4. **Embeddings** of the ROI crops (the ConSE image encoder), then ``Grounder.ground(verb, rois)``
    per method over the scene vocabulary (the plain names of the 74 sim objects).
 5. **Execution** of the chosen ROI's grasp with ``execute_pick``, judged from physics.
@@ -310,20 +314,8 @@ def _oracle_rect(
     return [(rect, pose)] if mask[row, col] else []
 
 
-def _raw_candidates(
-    scene: Scene, obs: Observation, roi: Region, body: int | None, config: PipelineConfig
-) -> list[GraspCandidate]:
-    """Grasp candidates of one ROI, best first, with their world poses."""
-    if config.grasp == "oracle":
-        if body is None:
-            return []
-        return [GraspCandidate(r, pose) for r, pose in _oracle_rect(scene, obs, body, roi.mask)]
-    from craft_e.runtime.grasp.predict import predict_grasps
-
-    rects = predict_grasps(
-        config.grasp, obs.rgb, obs.depth, roi.mask, config.max_grasps,
-        intrinsics=obs.intrinsics, min_quality=config.min_quality,
-    )
+def _with_poses(obs: Observation, rects: Sequence[Grasp2D]) -> list[GraspCandidate]:
+    """Candidates with their world poses (None where the centre has no valid depth)."""
     out: list[GraspCandidate] = []
     for rect in rects:
         try:
@@ -331,6 +323,37 @@ def _raw_candidates(
         except ValueError:
             pose = None
         out.append(GraspCandidate(rect, pose))
+    return out
+
+
+def raw_candidates(
+    scene: Scene, obs: Observation, rois: Sequence[Region], bodies: Sequence[int | None],
+    config: PipelineConfig,
+) -> list[list[GraspCandidate]]:
+    """Grasp candidates of every ROI, best first, with their world poses.
+
+    A grasp network runs once over the crop holding all the ROIs and each ROI takes the peaks
+    of the shared maps on its mask (``predict_grasps_rois``); the oracle is asked per body.
+    """
+    if config.grasp == "oracle":
+        return [[] if body is None else
+                 [GraspCandidate(r, pose) for r, pose in _oracle_rect(scene, obs, body, roi.mask)]
+                 for roi, body in zip(rois, bodies, strict=True)]
+    from craft_e.runtime.grasp.predict import predict_grasps_rois
+
+    rects = predict_grasps_rois(
+        config.grasp, obs.rgb, obs.depth, [roi.mask for roi in rois], config.max_grasps,
+        intrinsics=obs.intrinsics, min_quality=config.min_quality,
+    )
+    return [_with_poses(obs, r) for r in rects]
+
+
+def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
+    """The ROI's raised depth points ``[m, 3]`` (row-major order, as ``world[mask & raised]``),
+    gathered inside its box only: the grasp checks need them for every ROI."""
+    x, y, w, h = roi.box_xywh
+    box = (slice(y, y + h), slice(x, x + w))
+    out: FloatArray = world[box][roi.mask[box] & raised[box]]
     return out
 
 
@@ -406,19 +429,44 @@ def _three_d(
         if not target_mask[row, col]:
             reasons.append("centre off the target")
             continue
-        checked = _check(env, c, surfaces, config, fit=True, ik=True)
-        if checked.fits and checked.reachable:
+        known = c.reachable is not None  # IK does not depend on the surfaces: reuse it
+        checked = _check(env, c, surfaces, config, fit=True, ik=not known)
+        if checked.fits is False:
+            reasons.append(checked.detail)
+            continue
+        if c.reachable if known else checked.reachable:
             return True, ""
-        reasons.append(checked.detail)
+        reasons.append(c.detail if known else checked.detail)
     return False, "; ".join(dict.fromkeys(reasons))
 
 
+ROBOT_STAGES = ("segment", "grasp_net", "encode", "grasp_checks")
+
+
+@contextlib.contextmanager
+def _stage(timings: dict[str, float] | None, name: str) -> Iterator[None]:
+    """Add the block's wall time to ``timings[name]`` (reporting only: no result depends on it)."""
+    if timings is None:
+        yield
+        return
+    import time
+
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+
+
 def perceive(
-    env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation | None = None
+    env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation | None = None,
+    *, timings: dict[str, float] | None = None,
 ) -> ScenePerception:
     """Capture (unless ``obs`` is given), find ROIs and grasps, check them, embed the crops.
 
-    ``env`` holds the built scene with the arm at home; nothing here moves it.
+    ``env`` holds the built scene with the arm at home; nothing here moves it. ``timings``, if
+    given, receives the wall time of the robot-side stages (``ROBOT_STAGES``; rendering and the
+    simulator's ground truth excluded) for ``benchmarks/bench_perception.py``.
     """
     from craft_e.runtime.encoders.image import crop_box
 
@@ -428,23 +476,27 @@ def perceive(
     truth = gt_rois(obs, scene)
     target_body = scene.target.body_id
     target_gt = next((r for r in truth if r.label == target_body), None)
-    rois = raster_order(truth) if config.rois == "oracle" else segment(obs, config.segment).rois
-    world = obs.points_world()  # [H, W, 3]
-    table_z = scene.layout.table_z
-    raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
-    perceived: list[PerceivedROI] = []
+    with _stage(timings, "segment"):
+        rois = raster_order(truth) if config.rois == "oracle" else segment(obs, config.segment).rois
     owners = [roi.label if config.rois == "oracle" else majority_body(obs, roi.mask, bodies)
               for roi in rois]
+    k = config.rgb_scale
+    sharp = env.capture_rgb(k) if k > 1 else obs.rgb  # a render: simulator work, not timed
     with torch_threads(config.torch_threads):
-        raw = [_raw_candidates(scene, obs, roi, body, config)
-               for roi, body in zip(rois, owners, strict=True)]
-        k = config.rgb_scale
-        sharp = env.capture_rgb(k) if k > 1 else obs.rgb
-        crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
-        embeddings = encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
+        with _stage(timings, "grasp_net"):
+            raw = raw_candidates(scene, obs, rois, owners, config)
+        with _stage(timings, "encode"):
+            crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
+            embeddings = encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
+    table_z = scene.layout.table_z
+    perceived: list[PerceivedROI] = []
+    with _stage(timings, "grasp_checks"):
+        world = obs.points_world()  # [H, W, 3]
+        raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+        checked = [_usable(env, raw[i], _Surfaces(roi_points(world, raised, roi), table_z), config)
+                   for i, roi in enumerate(rois)]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
-        surfaces = _Surfaces(world[roi.mask & raised], table_z)
-        candidates, usable = _usable(env, raw[i], surfaces, config)
+        candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
         perceived.append(PerceivedROI(roi, tuple(candidates), usable,
                                       np.asarray(embeddings[i], np.float32), body, iou))

@@ -8,6 +8,7 @@ call is one that talks to a physics client, and passes it explicitly.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -17,13 +18,28 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def quat_to_matrix(xyzw: Sequence[float] | FloatArray) -> FloatArray:
-    """3x3 rotation of a pybullet-order (x, y, z, w) quaternion."""
+    """3x3 rotation of a pybullet-order (x, y, z, w) quaternion.
+
+    A tuple (what ``rpy_to_quat`` and pybullet return) is looked up in a cache and gets a
+    read-only matrix: IK converts the same grasp orientation at every waypoint of a pick."""
+    if isinstance(xyzw, tuple):
+        return _cached_matrix(tuple(float(v) for v in xyzw))
     out: FloatArray = Rotation.from_quat(np.asarray(xyzw, dtype=np.float64)).as_matrix()
     return out
 
 
+@lru_cache(maxsize=1024)
+def _cached_matrix(xyzw: tuple[float, ...]) -> FloatArray:
+    out: FloatArray = Rotation.from_quat(np.asarray(xyzw, dtype=np.float64)).as_matrix()
+    out.flags.writeable = False
+    return out
+
+
+@lru_cache(maxsize=1024)
 def rpy_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Fixed-axis roll-pitch-yaw (R = Rz Ry Rx, as URDF and pybullet use) → (x, y, z, w)."""
+    """Fixed-axis roll-pitch-yaw (R = Rz Ry Rx, as URDF and pybullet use) → (x, y, z, w).
+
+    Cached (an immutable tuple): IK asks for the same grasp yaw at every waypoint of a pick."""
     x, y, z, w = Rotation.from_euler("xyz", [roll, pitch, yaw]).as_quat()
     return float(x), float(y), float(z), float(w)
 

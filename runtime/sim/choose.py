@@ -1,0 +1,152 @@
+"""The robot's own path from one frame to one pick: IK only for the grasps grounding asks about.
+
+``sim.pipeline.perceive`` checks every ROI's grasps up front, finger fit and then the whole
+pick's IK (~49 IK solutions a pick), because the evaluation reports each ROI's usable grasp.
+A robot needs only the grasp it will execute. ``ground_lazily`` grounds with each ROI's best
+grasp that fits the fingers (IK not yet known), plans the IK of the chosen ROI's grasp only,
+and if that pick is unreachable moves the ROI on to its next fitting grasp (or drops it) and
+grounds again.
+
+The choice equals the eager one (``perceive`` + ``Grounder.ground``): an ROI's energy is its own
+(``E_grasp = -log(score)`` of its best usable grasp plus terms of its crop alone), candidates are
+tried best first, so an unverified ROI's energy can only rise once verified; the winner is
+verified, and every other ROI's true energy is at least what it was ranked with. Stable ties
+(lowest ROI index) are kept the same way. ``tests/test_choose.py`` checks it against the eager
+path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from craft_e.runtime.grounding.grounder import Grounding
+from craft_e.runtime.perception.roi import ROI
+
+if TYPE_CHECKING:
+    from craft_e.runtime.encoders.image import ImageEncoder
+    from craft_e.runtime.perception.observation import Observation
+    from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.pipeline import PipelineConfig
+
+
+class _Grounds(Protocol):
+    def ground(self, verb: str, rois: Sequence[ROI]) -> Grounding: ...
+
+
+@dataclass
+class LazyROI:
+    """One ROI for lazy grounding: its fitting grasps best first and how far IK ruled them out."""
+
+    box_xywh: tuple[float, float, float, float]
+    embedding: npt.NDArray[np.float32]
+    fitting: list[object]  # grasps that passed the finger check, best first (opaque here)
+    scores: list[float]  # their scores, parallel to ``fitting``
+    next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
+    verified: set[int] = field(default_factory=set)  # indices IK accepted
+
+    def as_roi(self, label: str) -> ROI:
+        """The grounder's view: the best grasp not ruled out (none left: no grasp)."""
+        rest = self.next_index < len(self.fitting)
+        return ROI(box_xywh=self.box_xywh,
+                   grasp_scores=[self.scores[self.next_index]] if rest else [],
+                   grasps=[self.fitting[self.next_index]] if rest else [],
+                   image_embedding=self.embedding, label=label)
+
+
+@dataclass(frozen=True)
+class LazyChoice:
+    """The grounding of the last round, the chosen grasp and how many IK plans were made."""
+
+    grounding: Grounding
+    grasp: object | None
+    plans: int
+
+
+def ground_lazily(
+    grounder: _Grounds, verb: str, rois: Sequence[LazyROI], reachable: Callable[[object], bool],
+) -> LazyChoice:
+    """Ground ``verb`` over ``rois``, checking ``reachable`` (the pick's IK) for chosen grasps
+    only, until the chosen ROI's grasp is reachable or no ROI is left (see the module docstring).
+
+    ``rois`` are advanced in place (their ``next_index``), so a second grounder on the same
+    scene reuses what IK already ruled out; ``reachable`` is called once per grasp at most.
+    """
+    plans = 0
+    while True:
+        grounding = grounder.ground(verb, [r.as_roi(f"roi{i}") for i, r in enumerate(rois)])
+        chosen = grounding.chosen
+        if chosen is None:
+            return LazyChoice(grounding, None, plans)
+        roi = rois[chosen.index]
+        k = roi.next_index
+        if k in roi.verified:
+            return LazyChoice(grounding, roi.fitting[k], plans)
+        plans += 1
+        if reachable(roi.fitting[k]):
+            roi.verified.add(k)
+            return LazyChoice(grounding, roi.fitting[k], plans)
+        roi.next_index += 1  # unreachable: its next fitting grasp (or none) and ground again
+
+
+def perceive_for_pick(
+    env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation,
+    *, timings: dict[str, float] | None = None,
+) -> list[LazyROI]:
+    """What the robot computes before grounding: ROIs, one grasp-network pass, the crops'
+    embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
+    points); IK is left to ``ground_lazily``. Predicted ROIs and network grasps only (the
+    oracle settings use the simulator's ground truth, which a robot does not have)."""
+    from craft_e.runtime.encoders.image import crop_box
+    from craft_e.runtime.perception.segment import segment
+    from craft_e.runtime.sim.pipeline import (
+        _stage,
+        finger_check,
+        raw_candidates,
+        roi_points,
+        tip_height,
+        torch_threads,
+    )
+
+    if config.grasp == "oracle" or config.rois == "oracle":
+        raise ValueError("the robot's path has no oracle: use predicted ROIs and a grasp backend")
+    with _stage(timings, "segment"):
+        rois = segment(obs, config.segment).rois
+    k = config.rgb_scale
+    sharp = env.capture_rgb(k) if k > 1 else obs.rgb  # a render: simulator work, not timed
+    with torch_threads(config.torch_threads):
+        with _stage(timings, "grasp_net"):
+            raw = raw_candidates(env.scene, obs, rois, [None] * len(rois), config)
+        with _stage(timings, "encode"):
+            crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
+            embeddings = encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
+    table_z = env.scene.layout.table_z
+    out: list[LazyROI] = []
+    with _stage(timings, "finger_checks"):
+        world = obs.points_world()  # [H, W, 3]
+        raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+        for i, roi in enumerate(rois):
+            material = roi_points(world, raised, roi)  # [m, 3]
+            fitting = [c for c in raw[i] if c.pose is not None and (not config.fit_filter or finger_check(
+                material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0])]
+            box = tuple(float(v) for v in roi.box_xywh)
+            out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
+                               list(fitting), [c.quality for c in fitting]))
+    return out
+
+
+def pick_reachable(env: SimEnv, config: PipelineConfig) -> Callable[[object], bool]:
+    """``reachable`` for ``ground_lazily``: the whole pick's IK plan (``plan_pick``), as
+    ``perceive`` checks it (always True when ``config.ik_filter`` is off)."""
+    from craft_e.runtime.sim.episode import plan_pick
+    from craft_e.runtime.sim.pipeline import GraspCandidate
+
+    def reachable(grasp: object) -> bool:
+        assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
+        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick) is None
+
+    return reachable
