@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from craft_e.runtime.kb.package import (
+from ..runtime.kb.package import (
     PackageError,
     PackageHeader,
     PackageSignature,
@@ -31,8 +31,8 @@ from craft_e.runtime.kb.package import (
     statement_for,
     verify_package,
 )
-from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
-from craft_e.schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, Manifest
+from ..runtime.kb.verify import BundleError, read_manifest, verify_files
+from ..schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, Manifest
 
 SIGNING_KEY_FILE = "craft-signing.key"
 PUBLIC_KEY_FILE = "craft-signing.pub"

@@ -16,15 +16,15 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 
-from craft_e.paths import PROMPTS_DIR
-from craft_e.schemas.v1.payloads import (
+from ..paths import PROMPTS_DIR
+from ..schemas.v1.payloads import (
     ObjectProperties,
     PropertyObjects,
     VerbObjects,
     VerbProperties,
     VerbPropertiesV2,
 )
-from craft_e.schemas.v1.records import Message
+from ..schemas.v1.records import Message
 
 PAYLOADS: dict[str, type[BaseModel]] = {
     "verb_properties": VerbProperties,

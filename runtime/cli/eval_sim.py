@@ -44,14 +44,14 @@ def eval_sim(
                                                   "pre-grasp (closed-loop correction).")] = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
-    from craft_e.paths import KB_DIR
-    from craft_e.runtime.evaluation.common import emit_report
-    from craft_e.runtime.evaluation.methods import select_methods
-    from craft_e.runtime.evaluation.sim_eval import LabelsError, evaluate_sim
-    from craft_e.runtime.sim.assets import SharedAssetsMissingError
-    from craft_e.runtime.sim.episode import sim_configs
-    from craft_e.runtime.sim.pipeline import PipelineConfig
-    from craft_e.runtime.sim.placement import PlacementError
+    from ...paths import KB_DIR
+    from ..evaluation.common import emit_report
+    from ..evaluation.methods import select_methods
+    from ..evaluation.sim_eval import LabelsError, evaluate_sim
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.episode import sim_configs
+    from ..sim.pipeline import PipelineConfig
+    from ..sim.placement import PlacementError
 
     try:
         env_config, pick = sim_configs(gripper, wrist_look)

@@ -36,14 +36,14 @@ def eval_static(
                                                   "to --jobs 1).")] = 1,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
-    from craft_e.paths import KB_DIR, REPO_ROOT
-    from craft_e.runtime.cli.eval_sim import ProgressBar, split_names
-    from craft_e.runtime.evaluation.common import emit_report
-    from craft_e.runtime.evaluation.methods import select_methods
-    from craft_e.runtime.evaluation.sim_eval import LabelsError
-    from craft_e.runtime.evaluation.static_eval import evaluate_static, parse_noise
-    from craft_e.runtime.sim.assets import SharedAssetsMissingError
-    from craft_e.runtime.sim.placement import PlacementError
+    from ...paths import KB_DIR, REPO_ROOT
+    from ..evaluation.common import emit_report
+    from ..evaluation.methods import select_methods
+    from ..evaluation.sim_eval import LabelsError
+    from ..evaluation.static_eval import evaluate_static, parse_noise
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.placement import PlacementError
+    from .eval_sim import ProgressBar, split_names
 
     labels_path = labels or REPO_ROOT / DEFAULT_LABELS
     try:

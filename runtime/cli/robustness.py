@@ -49,12 +49,12 @@ def robustness_imagenet(
     energy_form: EnergyFormOpt = None,
 ) -> None:
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
-    from craft_e.paths import KB_DIR
-    from craft_e.runtime.encoders.conse import ENCODER_CACHE_DIR
-    from craft_e.runtime.evaluation.common import emit_report
-    from craft_e.runtime.evaluation.imagenet import LabelsError
-    from craft_e.runtime.evaluation.methods import default_methods
-    from craft_e.runtime.evaluation.robustness import (
+    from ...paths import KB_DIR
+    from ..encoders.conse import ENCODER_CACHE_DIR
+    from ..evaluation.common import emit_report
+    from ..evaluation.imagenet import LabelsError
+    from ..evaluation.methods import default_methods
+    from ..evaluation.robustness import (
         DEFAULT_LEVELS,
         evaluate_robustness,
         parse_levels,

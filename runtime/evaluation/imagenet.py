@@ -44,8 +44,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.paths import VOCAB_DIR, shared_dir
-from craft_e.runtime.evaluation.common import (
+from ...paths import VOCAB_DIR, shared_dir
+from ..grounding.energies import object_hypotheses
+from ..grounding.grounder import normalize_verb_name
+from ..grounding.settings import GroundingSettings
+from .common import (
     ImageEmbeddingCache,
     MethodResult,
     SkippedMethod,
@@ -55,10 +58,6 @@ from craft_e.runtime.evaluation.common import (
     reciprocal_rank,
     topk_accuracy,
 )
-from craft_e.runtime.grounding.energies import object_hypotheses
-from craft_e.runtime.grounding.grounder import normalize_verb_name
-
-from ..grounding.settings import GroundingSettings
 from .methods import MethodSpec, default_methods, load_methods, method_settings
 
 IntArray = npt.NDArray[np.intp]
@@ -82,7 +81,7 @@ def dataset_dir() -> Path:
 
 
 def _norm(name: str) -> str:
-    from craft_e.schemas.names import normalize_name
+    from ...schemas.names import normalize_name
 
     try:
         return normalize_name(name)
@@ -257,7 +256,7 @@ class ImageNetReport:
 
 
 def _default_encoder(threads: int | None = None) -> Any:
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=threads)
 
@@ -266,7 +265,7 @@ def embed_dataset_images(
     data: ImageNetData, indices: Sequence[int], encoder: Any, cache_dir: Path | None, batch_size: int = 16
 ) -> FloatArray:
     """``[len(indices), d]`` embeddings of whole images, each computed once per encoder."""
-    from craft_e.runtime.encoders.image import load_image
+    from ..encoders.image import load_image
 
     cache = ImageEmbeddingCache(encoder.id, cache_dir)
     paths = [data.images[i] for i in indices]

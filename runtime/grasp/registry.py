@@ -15,8 +15,7 @@ from pathlib import Path
 import torch
 from safetensors.torch import load_file
 
-from craft_e.paths import shared_dir
-
+from ...paths import shared_dir
 from .base import GraspNet
 from .ggcnn import GGCNN, GGCNN2
 from .grconvnet import GenerativeResnet

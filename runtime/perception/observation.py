@@ -14,7 +14,7 @@ from functools import cache, cached_property
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grasp.geometry import CameraIntrinsics
+from ..grasp.geometry import CameraIntrinsics
 
 
 @dataclass(frozen=True)

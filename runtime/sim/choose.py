@@ -24,14 +24,14 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grounding.grounder import Grounding
-from craft_e.runtime.perception.roi import ROI
+from ..grounding.grounder import Grounding
+from ..perception.roi import ROI
 
 if TYPE_CHECKING:
-    from craft_e.runtime.encoders.image import ImageEncoder
-    from craft_e.runtime.perception.observation import Observation
-    from craft_e.runtime.sim.env import SimEnv
-    from craft_e.runtime.sim.pipeline import PipelineConfig
+    from ..encoders.image import ImageEncoder
+    from ..perception.observation import Observation
+    from .env import SimEnv
+    from .pipeline import PipelineConfig
 
 
 class _Grounds(Protocol):
@@ -101,9 +101,9 @@ def perceive_for_pick(
     embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
     points); IK is left to ``ground_lazily``. Predicted ROIs and network grasps only (the
     oracle settings use the simulator's ground truth, which a robot does not have)."""
-    from craft_e.runtime.encoders.image import crop_box
-    from craft_e.runtime.perception.segment import segment
-    from craft_e.runtime.sim.pipeline import (
+    from ..encoders.image import crop_box
+    from ..perception.segment import segment
+    from .pipeline import (
         _stage,
         finger_check,
         raw_candidates,
@@ -142,8 +142,8 @@ def perceive_for_pick(
 def pick_reachable(env: SimEnv, config: PipelineConfig) -> Callable[[object], bool]:
     """``reachable`` for ``ground_lazily``: the whole pick's IK plan (``plan_pick``), as
     ``perceive`` checks it (always True when ``config.ik_filter`` is off)."""
-    from craft_e.runtime.sim.episode import plan_pick
-    from craft_e.runtime.sim.pipeline import GraspCandidate
+    from .episode import plan_pick
+    from .pipeline import GraspCandidate
 
     def reachable(grasp: object) -> bool:
         assert isinstance(grasp, GraspCandidate) and grasp.pose is not None

@@ -22,14 +22,14 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.grasp.geometry import TopDownGrasp
-from craft_e.runtime.sim.env import EnvConfig, SimEnv
-from craft_e.runtime.sim.gripper import GripperConfig
-from craft_e.runtime.sim.hands import hand_spec
-from craft_e.runtime.sim.robot import CR3Robot, IKSolution
-from craft_e.runtime.sim.robot_urdf import FINGERTIP_BELOW_TCP
-from craft_e.runtime.sim.scene import Scene
-from craft_e.runtime.sim.wrist import WristConfig, look, recentre
+from ..grasp.geometry import TopDownGrasp
+from .env import EnvConfig, SimEnv
+from .gripper import GripperConfig
+from .hands import hand_spec
+from .robot import CR3Robot, IKSolution
+from .robot_urdf import FINGERTIP_BELOW_TCP
+from .scene import Scene
+from .wrist import WristConfig, look, recentre
 
 
 class Outcome(StrEnum):

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
-from craft_e.runtime.sim.hands import DEFAULT_HAND, HandName, HandSpec, hand_spec
+from .hands import DEFAULT_HAND, HandName, HandSpec, hand_spec
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import pybullet_data
 
-from craft_e.runtime.sim.assets import shared_path
-from craft_e.runtime.sim.hands import (
+from .assets import shared_path
+from .hands import (
     DEFAULT_HAND,
     FINGERTIP_BELOW_TCP,
     PANDA,

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grasp.geometry import CameraIntrinsics, TopDownGrasp
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.camera import Camera, render
+from ..grasp.geometry import CameraIntrinsics, TopDownGrasp
+from ..perception.observation import Observation
+from .camera import Camera, render
 
 FloatArray = npt.NDArray[np.float64]
 
