@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from craft_e.paths import REPO_ROOT
+from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import (
     build_grounders,
     default_encoder,
@@ -50,7 +50,7 @@ from craft_e.runtime.sim.pipeline import (
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--labels", type=Path, default=REPO_ROOT / "artifacts/labels/sim_dev_labels.csv")
+    parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
     parser.add_argument("--scenes", type=int, default=6)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", type=Path, default=None)

@@ -28,7 +28,7 @@ from rich.progress import (
 from craft_e.compiler.cli_diagnose import register as register_diagnose
 from craft_e.compiler.cli_pack import register as register_pack
 from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
-from craft_e.paths import CACHE_DIR, VOCAB_DIR
+from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
 from craft_e.runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
 
 app = typer.Typer(
@@ -193,7 +193,7 @@ def build(
         config = BuildConfig(
             verbs_file=verbs,
             objects_file=objects,
-            out=out or Path("artifacts/kb") / name,
+            out=out or KB_DIR / name,
             name=name,
             kb_version=kb_version,
             mode=mode,
@@ -514,7 +514,6 @@ def cache_clean(
     )
     from craft_e.compiler.sources.llm import LLM_SOURCE, SourceError
     from craft_e.compiler.vocab import VocabError
-    from craft_e.paths import KB_DIR
 
     store = RecordCache(cache)
     try:

@@ -10,8 +10,6 @@ import typer
 
 from .common import AffModeOpt, EnergyFormOpt, err, fail, grounding_settings
 
-DEFAULT_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
-
 
 def eval_static(
     labels: Annotated[Path | None, typer.Option(help="CSV of affording pairs 'verb,object' "
@@ -36,7 +34,7 @@ def eval_static(
                                                   "to --jobs 1).")] = 1,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
-    from craft_e.paths import KB_DIR, REPO_ROOT
+    from craft_e.paths import KB_DIR, SIM_DEV_LABELS
     from craft_e.runtime.cli.eval_sim import ProgressBar, split_names
     from craft_e.runtime.evaluation.common import emit_report
     from craft_e.runtime.evaluation.methods import select_methods
@@ -45,7 +43,7 @@ def eval_static(
     from craft_e.runtime.sim.assets import SharedAssetsMissingError
     from craft_e.runtime.sim.placement import PlacementError
 
-    labels_path = labels or REPO_ROOT / DEFAULT_LABELS
+    labels_path = labels or SIM_DEV_LABELS
     try:
         levels = [parse_noise(n) for n in noise or []]
         specs = select_methods(split_names(methods), kb, kb_dir or KB_DIR)

@@ -8,8 +8,6 @@ from typing import Annotated
 
 import typer
 
-DEFAULT_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
-
 
 def demo(
     verb: Annotated[str, typer.Option(help="The request, e.g. cut.")],
@@ -25,7 +23,7 @@ def demo(
     threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 1,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
-    from craft_e.paths import KB_DIR, REPO_ROOT
+    from craft_e.paths import KB_DIR, SIM_DEV_LABELS
     from craft_e.runtime.cli.common import err, fail
     from craft_e.runtime.cli.common import out as console
     from craft_e.runtime.evaluation.methods import MethodSpec, build_grounders
@@ -46,7 +44,7 @@ def demo(
 
     try:
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads)  # type: ignore[arg-type]
-        all_labels = load_sim_labels(labels or REPO_ROOT / DEFAULT_LABELS)
+        all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:
         fail(str(exc))
     name = normalize_verb_name(verb)

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.paths import KB_DIR, VOCAB_DIR, shared_dir
+from craft_e.paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
 from craft_e.runtime.evaluation.common import (
     MethodResult,
     SkippedMethod,
@@ -59,7 +59,6 @@ CANDIDATES = 5
 METRICS = ("ap", "auc", "top1")
 METRIC_LABELS = {"ap": "AP", "auc": "AUC", "top1": "top-1"}
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "direct-llm", KB_DIR / "conceptnet"]
-SIM_DEV_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
 BUILTIN_LABELS = ("zhu", "sim-dev")
 
 
