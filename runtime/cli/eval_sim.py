@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
-from .common import AffModeOpt, EnergyFormOpt, err, fail, grounding_settings
-
-
-def split_names(values: list[str] | None) -> list[str] | None:
-    """``--methods A,B --methods C`` → ``[A, B, C]`` (None when not given)."""
-    if not values:
-        return None
-    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+from .common import AffModeOpt, EnergyFormOpt, fail, grounding_settings
+from .episodes import run_with_progress, split_names
 
 
 def eval_sim(
@@ -42,7 +35,6 @@ def eval_sim(
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from craft_e.paths import KB_DIR
-    from craft_e.runtime.evaluation.common import emit_report
     from craft_e.runtime.evaluation.methods import select_methods
     from craft_e.runtime.evaluation.sim_eval import LabelsError, evaluate_sim
     from craft_e.runtime.sim.assets import SharedAssetsMissingError
@@ -56,40 +48,8 @@ def eval_sim(
     except ValueError as exc:
         fail(str(exc))
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode)
-    start = time.perf_counter()
-    try:
-        with ProgressBar() as bar:
-            report = evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
-                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs)
-    except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError) as exc:
-        fail(str(exc))
-    err.print(f"{report.config['episodes']} episodes in {time.perf_counter() - start:.0f} s", highlight=False)
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
-                lambda msg: err.print(msg, highlight=False))
-
-
-class ProgressBar:
-    """A rich progress bar on stderr, usable as ``progress(done, total, record)``."""
-
-    def __enter__(self) -> ProgressBar:
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeRemainingColumn,
-        )
-
-        self._bar = Progress(TextColumn("[bold]episodes"), BarColumn(), MofNCompleteColumn(),
-                             TimeRemainingColumn(), TextColumn("{task.description}"),
-                             console=Console(stderr=True), transient=False)
-        self._bar.__enter__()
-        self._task = self._bar.add_task("", total=None)
-        return self
-
-    def __call__(self, done: int, total: int, record: dict[str, Any]) -> None:
-        self._bar.update(self._task, completed=done, total=total, description=record.get("id", ""))
-
-    def __exit__(self, *exc: object) -> None:
-        self._bar.__exit__(None, None, None)
+    run_with_progress(
+        lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
+                                 max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs),
+        "episodes", "episodes", json_out, markdown,
+        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError))

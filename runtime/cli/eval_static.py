@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from .common import AffModeOpt, EnergyFormOpt, err, fail, grounding_settings
+from .common import AffModeOpt, EnergyFormOpt, fail, grounding_settings
+from .episodes import run_with_progress, split_names
 
 
 def eval_static(
@@ -35,8 +35,6 @@ def eval_static(
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from craft_e.paths import KB_DIR, SIM_DEV_LABELS
-    from craft_e.runtime.cli.eval_sim import ProgressBar, split_names
-    from craft_e.runtime.evaluation.common import emit_report
     from craft_e.runtime.evaluation.methods import select_methods
     from craft_e.runtime.evaluation.sim_eval import LabelsError
     from craft_e.runtime.evaluation.static_eval import evaluate_static, parse_noise
@@ -50,16 +48,10 @@ def eval_static(
     except ValueError as exc:
         fail(str(exc))
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode)
-    start = time.perf_counter()
-    try:
-        with ProgressBar() as bar:
-            report = evaluate_static(labels_path, backends=split_names(grasp) or ["grconvnet"],
-                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
-                                     noise=levels, threads=threads,
-                                     settings=settings, progress=bar, jobs=jobs)
-    except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError,
-            ValueError, RuntimeError) as exc:
-        fail(str(exc))
-    err.print(f"{report.config['episodes']} scenes in {time.perf_counter() - start:.0f} s", highlight=False)
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
-                lambda msg: err.print(msg, highlight=False))
+    run_with_progress(
+        lambda bar: evaluate_static(labels_path, backends=split_names(grasp) or ["grconvnet"],
+                                    layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
+                                    noise=levels, threads=threads, settings=settings, progress=bar,
+                                    jobs=jobs),
+        "episodes", "scenes", json_out, markdown,
+        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, ValueError, RuntimeError))

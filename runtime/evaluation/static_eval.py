@@ -47,7 +47,7 @@ from craft_e.runtime.evaluation.sim_eval import (
     load_sim_labels,
     make_episode_specs,
 )
-from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, wrap_half_pi
+from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect
 from craft_e.runtime.sim.env import EnvConfig
 from craft_e.runtime.sim.oracle import OracleConfig, top_surface_points
 from craft_e.runtime.sim.scene import Scene
@@ -90,9 +90,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
 
     ``width_m`` is the object's section, not the opening.
     """
-    from craft_e.runtime.sim.oracle import (
-        cross_section,  # the oracle's own rule, shared on purpose
-    )
+    from craft_e.runtime.sim.oracle import grasp_at  # the oracle's own rule, shared on purpose
 
     cfg = config or GTGraspConfig()
     o = cfg.oracle
@@ -116,19 +114,11 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
             closing = np.array([math.cos(yaw), math.sin(yaw)])
             along_axis = np.array([-closing[1], closing[0]])
             along = (xy - centroid) @ along_axis
-            across = (xy - centroid) @ closing
             offsets = np.arange(0.0, float(np.abs(along).max()), o.slide_step)
             for offset in sorted(np.concatenate([offsets, -offsets[1:]]).tolist(), key=abs):
-                section = cross_section(along, across, float(offset), o, parallel)
-                if section is None:
-                    continue
-                low, high = section
-                center = centroid + offset * along_axis + (low + high) / 2 * closing
-                near = np.linalg.norm(xy - center, axis=1) <= o.strip_half_width
-                strip = np.abs(along - offset) <= o.strip_half_width
-                top = float(points[near if np.any(near) else strip, 2].max())
-                poses.append(TopDownGrasp(np.array([center[0], center[1], top]), wrap_half_pi(yaw),
-                                          high - low + o.ray_spacing))
+                grasp = grasp_at(points, centroid, along_axis, closing, yaw, float(offset), o, parallel)
+                if grasp is not None:
+                    poses.append(grasp)
         if poses:
             return poses
     return []
