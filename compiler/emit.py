@@ -13,7 +13,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from craft_e.runtime.kb.durable import current_umask
+from craft_e.files import current_umask
 from craft_e.schemas.v1.bundle import (
     BUILD_INFO_FILE,
     BUNDLE_FILES,

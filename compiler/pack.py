@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from craft_e.runtime.kb.durable import current_umask
+from craft_e.files import current_umask
 from craft_e.runtime.kb.package import (
     PackageError,
     PackageHeader,

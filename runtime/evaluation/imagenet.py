@@ -44,12 +44,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from craft_e.files import sha256_file
 from craft_e.paths import VOCAB_DIR, shared_dir
 from craft_e.runtime.evaluation.common import (
     ImageEmbeddingCache,
     MethodResult,
     SkippedMethod,
-    file_sha256,
     markdown_table,
     ndcg,
     reciprocal_rank,
@@ -339,7 +339,7 @@ def evaluate_imagenet(
     if sets:
         results = reference_rows(sets) + results
     config = {
-        "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "episodes": episodes,
+        "labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "episodes": episodes,
         "seed": seed, "verbs": len(labels), "candidates": CANDIDATES, "classes": len(class_ids),
         "images": len(image_ids), "vocabulary_size": len(vocabulary), "image_encoder": encoder_id,
         "temperature": settings.temperature, "aff_mode": settings.aff_mode,

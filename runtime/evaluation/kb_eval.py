@@ -41,11 +41,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from craft_e.files import sha256_file
 from craft_e.paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
 from craft_e.runtime.evaluation.common import (
     MethodResult,
     SkippedMethod,
-    file_sha256,
     markdown_table,
 )
 from craft_e.runtime.evaluation.zhu import average_precision, read_zhu_matrix
@@ -99,7 +99,7 @@ def _from_names(name: str, source: Path, objects: Sequence[str], pairs: dict[str
         positives[normalize_verb_name(verb)] = mask
     if not positives:
         raise KBLabelsError(f"{source}: no verbs")
-    return LabelSet(name, str(source), objs, positives, file_sha256(source))
+    return LabelSet(name, str(source), objs, positives, sha256_file(source))
 
 
 def zhu_labels(path: Path | None = None) -> LabelSet:
@@ -109,7 +109,7 @@ def zhu_labels(path: Path | None = None) -> LabelSet:
         raise FileNotFoundError(f"{src}: Zhu matrix not found (set CRAFT_SHARED)")
     m = read_zhu_matrix(src)
     shown = "$CRAFT_SHARED/data/affordance_dev/zhu2014_affordance_matrix.csv" if path is None else str(src)
-    return LabelSet("zhu", shown, list(m.objects), dict(m.labels), file_sha256(src))
+    return LabelSet("zhu", shown, list(m.objects), dict(m.labels), sha256_file(src))
 
 
 def sim_labels(path: Path, name: str = "sim-dev") -> LabelSet:

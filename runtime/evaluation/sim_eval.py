@@ -34,10 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from craft_e.files import sha256_file
 from craft_e.runtime.evaluation.common import (
     MethodResult,
     SkippedMethod,
-    file_sha256,
     markdown_table,
 )
 from craft_e.runtime.evaluation.imagenet import LabelsError
@@ -533,7 +533,7 @@ def evaluate_sim(
                              + ", ".join(open_vocab))
         results.append(row)
     config_out = {
-        "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "seed": seed,
+        "labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
         "layouts": layouts, "max_pairs": max_pairs, "pairs": len({(s.verb, s.object) for s in specs}),
         "episodes": len(specs), "verbs": len({s.verb for s in specs}), "distractors": DISTRACTORS,
         "pipeline": cfg.to_dict(), "image_encoder": enc.id, "vocabulary_size": len(sim_vocabulary()),

@@ -40,7 +40,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.evaluation.common import MethodResult, SkippedMethod, file_sha256
+from craft_e.files import sha256_file
+from craft_e.runtime.evaluation.common import MethodResult, SkippedMethod
 from craft_e.runtime.evaluation.sim_eval import (
     EpisodeSpec,
     default_encoder,
@@ -475,7 +476,7 @@ def evaluate_static(
                              "detect": sum(o["detect"] for o in outcomes) / n,
                              "grasp": sum(c["target_grasp"] for c in cells) / n},
                     settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma}))
-    config = {"labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "seed": seed,
+    config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
               "noise": [lvl.label for lvl in levels], "image_encoder": enc.id, "detect_iou": DETECT_IOU,

@@ -42,7 +42,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from craft_e.runtime.kb.durable import fsync_dir
+from craft_e.files import fsync_dir
 from craft_e.runtime.kb.package import (
     DEFAULT_LIMITS,
     Limits,

@@ -53,7 +53,7 @@ from typing import IO, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from craft_e.runtime.kb.durable import current_umask, fsync_dir
+from craft_e.files import current_umask, fsync_dir
 from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
 from craft_e.schemas.v1.bundle import (
     BUILD_INFO_FILE,
