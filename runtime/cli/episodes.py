@@ -9,9 +9,26 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Annotated, Any, Protocol
+
+import typer
 
 from .common import err, fail, note
+
+if TYPE_CHECKING:
+    from ..evaluation.methods import MethodSpec
+
+LayoutsOpt = Annotated[int, typer.Option(min=1, help="Layouts (scenes) per verb–target pair.")]
+MethodsOpt = Annotated[list[str] | None, typer.Option(
+    help="Methods to run, comma-separated or repeated (default: CRAFT-E, CRAFT, direct-LLM, alignment-only).")]
+SceneKbOpt = Annotated[Path | None, typer.Option(help="CRAFT-E bundle (default <kb-dir>/craft-e-default).")]
+SceneKbDirOpt = Annotated[Path | None, typer.Option(
+    help="Folder of the bundles (craft-e-default/, conceptnet/, direct-llm/).")]
+EpisodesJsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results (with every episode) as JSON.")]
+TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.")]
+MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
+SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
+JobsOpt = Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical to --jobs 1).")]
 
 
 class Report(Protocol):
@@ -29,6 +46,17 @@ def split_names(values: list[str] | None) -> list[str] | None:
     if not values:
         return None
     return [n.strip() for v in values for n in v.split(",") if n.strip()]
+
+
+def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | None) -> list[MethodSpec]:
+    """``--methods``/``--kb``/``--kb-dir`` as method specs, or exit 2 naming the bad one."""
+    from ...paths import KB_DIR
+    from ..evaluation.methods import select_methods
+
+    try:
+        return select_methods(split_names(methods), kb, kb_dir or KB_DIR)
+    except ValueError as exc:
+        fail(str(exc))
 
 
 class ProgressBar:
