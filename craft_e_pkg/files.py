@@ -1,6 +1,7 @@
 """File helpers that the compiler, the runtime and the evaluation all need, written once.
 
-``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
+``read_json`` reads a user's JSON file with one wording of its errors (missing, not JSON with
+the line); ``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
 large); ``fsync_dir`` makes a rename durable (the directory entry reaches the disk, not only the
 file); ``current_umask`` reads the process umask so staged folders get the permissions a plain
 ``mkdir`` would have given them (``mkdtemp`` creates them 0o700).
@@ -10,8 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import os
 from pathlib import Path
+from typing import Any
 
 
 def sha256_file(path: Path) -> str:
@@ -38,3 +41,14 @@ def fsync_dir(folder: Path) -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
+
+
+def read_json(path: Path, what: str, error: type[Exception] = ValueError) -> Any:
+    """The parsed JSON of ``path`` (a ``what``, e.g. "labels file"); ``error`` (the caller's
+    input-error type) names the file and, for bad JSON, the line — no traceback for a typo."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import difflib
-import json
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -44,7 +43,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.files import sha256_file
+from craft_e.files import read_json, sha256_file
 from craft_e.paths import VOCAB_DIR, shared_dir
 from craft_e.runtime.evaluation.common import (
     ImageEmbeddingCache,
@@ -132,12 +131,7 @@ def load_dataset(root: Path | None = None) -> ImageNetData:
 def load_labels(path: Path, classes: Sequence[str]) -> dict[str, list[str]]:
     """``{"verb": ["object", ...]}`` with names normalized; unknown objects are an error that
     lists close matches (a typo would silently turn a positive into a negative)."""
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise LabelsError(f"{path}: labels file not found") from None
-    except json.JSONDecodeError as exc:
-        raise LabelsError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    raw = read_json(path, "labels file", LabelsError)
     if not isinstance(raw, dict):
         raise LabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
     known = set(classes)

@@ -31,7 +31,6 @@ crc32(verb))``.
 
 from __future__ import annotations
 
-import json
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -41,7 +40,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.files import sha256_file
+from craft_e.files import read_json, sha256_file
 from craft_e.paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
 from craft_e.runtime.evaluation.common import (
     MethodResult,
@@ -130,12 +129,7 @@ def sim_labels(path: Path, name: str = "sim-dev") -> LabelSet:
 
 def json_labels(path: Path, objects: Sequence[str] | None = None) -> LabelSet:
     """``{"verb": [...]}``; candidates: ``"_objects"`` in the file, ``objects``, or ImageNet's."""
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise KBLabelsError(f"{path}: labels file not found") from None
-    except json.JSONDecodeError as exc:
-        raise KBLabelsError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    raw = read_json(path, "labels file", KBLabelsError)
     if not isinstance(raw, dict):
         raise KBLabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
     pairs: dict[str, list[str]] = {}
