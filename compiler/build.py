@@ -87,6 +87,9 @@ class BuildConfig(BaseModel):
     force: bool = False
     prompt_version: Literal["v1", "v2"] = DEFAULT_PROMPT_VERSION
     property_pass: bool = False  # stage 2b: also ask per property over all objects (max w_po)
+    # "ask": a per-object prompt for every pair no record covers; "reuse": read recorded
+    # per-object answers only and leave the rest to stage 2b (needs property_pass)
+    object_pass: Literal["ask", "reuse"] = "ask"
     concurrency: int = Field(default=4, ge=1)  # live synchronous requests in flight at once
 
 
@@ -124,19 +127,22 @@ def _source_pass(
         transport=transport,
         max_concurrency=config.concurrency,
     )
-    version, glosses = config.prompt_version, objects.glosses
+    version, glosses, senses = config.prompt_version, objects.glosses, verbs.glosses
     if config.mode == "direct":
         return direct_llm_draft(
-            source, verbs.names, objects.names, progress, version=version, glosses=glosses
+            source, verbs.names, objects.names, progress,
+            version=version, glosses=glosses, verb_glosses=senses,
         )
     draft = llm_property_draft(
-        source, verbs.names, objects.names, progress, version=version, glosses=glosses
+        source, verbs.names, objects.names, progress, version=version, glosses=glosses,
+        verb_glosses=senses, ask_objects=config.object_pass == "ask",
     )
     if config.property_pass:
         add_property_pass(draft, source, progress)
     if config.mode == "llm+direct":
         direct = direct_llm_draft(
-            source, verbs.names, objects.names, progress, version=version, glosses=glosses
+            source, verbs.names, objects.names, progress,
+            version=version, glosses=glosses, verb_glosses=senses,
         )
         add_direct_paths(draft, direct)
     return draft

@@ -119,7 +119,8 @@ def build_references(
 ) -> set[str]:
     """Keys of every record a replay build of these inputs reads (``MissingRecordError`` if one
     is missing: then the build's references cannot be known and nothing may be deleted)."""
-    verbs = read_vocabulary(verbs_file, kind="verbs").names
+    verb_vocab = read_vocabulary(verbs_file, kind="verbs")
+    verbs, senses = verb_vocab.names, verb_vocab.glosses
     vocab = read_vocabulary(objects_file, kind="objects")
     objects, glosses = vocab.names, vocab.glosses
     source = _TrackingSource(cache=cache, provider=provider, model=model)
@@ -128,7 +129,9 @@ def build_references(
         if mode not in CLEAN_MODES:
             raise ReferencesError(f"unknown mode {mode!r}; choose from {', '.join(CLEAN_MODES)}")
         if mode in ("llm", "llm+direct"):
-            draft = llm_property_draft(source, verbs, objects, version=prompt_version, glosses=glosses)
+            draft = llm_property_draft(
+                source, verbs, objects, version=prompt_version, glosses=glosses, verb_glosses=senses
+            )
             covering, _ = plan_object_calls(
                 source, objects, draft.properties(), version=prompt_version,
                 glosses=draft.glosses, definitions=draft.definitions,
@@ -142,10 +145,12 @@ def build_references(
                 add_property_pass(draft, source)
             keys |= _draft_keys(draft)
         if mode in ("direct", "llm+direct"):
-            direct = direct_llm_draft(source, verbs, objects, version=prompt_version, glosses=glosses)
+            direct = direct_llm_draft(
+                source, verbs, objects, version=prompt_version, glosses=glosses, verb_glosses=senses
+            )
             keys |= _draft_keys(direct)
             if prompt_version != "v1":
-                by_verb, _ = plan_direct_calls(source, verbs, objects, glosses)
+                by_verb, _ = plan_direct_calls(source, verbs, objects, glosses, senses)
                 keys |= {r.key for records in by_verb.values() for r in records}
     return keys | source.seen
 

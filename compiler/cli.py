@@ -141,6 +141,13 @@ def build(
             help="Stage 2b: also read per-property answers over all objects (w_po = the larger)."
         ),
     ] = False,
+    object_pass: Annotated[
+        str,
+        typer.Option(
+            help="Stage 2 per object: ask (a prompt per object with unjudged properties) | reuse "
+            "(recorded answers only; the rest is judged by stage 2b, needs --property-pass)."
+        ),
+    ] = "ask",
     concurrency: Annotated[
         int, typer.Option(min=1, help="Live requests in flight at once (openai, gemini).")
     ] = 4,
@@ -169,6 +176,10 @@ def build(
         fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")
     if mode not in ("llm", "conceptnet", "direct", "llm+direct"):
         fail(f"unknown mode {mode!r}; choose llm, conceptnet, direct or llm+direct")
+    if object_pass not in ("ask", "reuse"):
+        fail(f"unknown --object-pass {object_pass!r}; choose ask or reuse")
+    if object_pass == "reuse" and not property_pass:
+        fail("--object-pass reuse leaves unrecorded pairs to stage 2b: add --property-pass")
     transport = None
     batch_backend = None
     if provider.endswith("-batch"):
@@ -207,6 +218,7 @@ def build(
             force=force,
             prompt_version=_prompt_version(prompts),
             property_pass=property_pass,
+            object_pass="reuse" if object_pass == "reuse" else "ask",
             concurrency=concurrency,
         )
     except ValidationError as exc:
@@ -572,16 +584,17 @@ def curate_record(
     from craft_e.compiler.vocab import VocabError, read_vocabulary
 
     try:
-        v = read_vocabulary(verbs, kind="verbs").names
+        vv = read_vocabulary(verbs, kind="verbs")
         ov = read_vocabulary(objects, kind="objects")
         result = record_answers(
             LLMSource(RecordCache(cache)),
             prompt,
             answers,
-            v,
+            vv.names,
             ov.names,
             version=_prompt_version(prompts),
             glosses=ov.glosses,
+            verb_glosses=vv.glosses,
         )
     except (CurationError, VocabError) as exc:
         fail(str(exc))
@@ -603,38 +616,42 @@ def curate_pending(
     prompt: Annotated[
         str,
         typer.Option(
-            help="object_properties (stage 2) | property_objects (stage 2b) | verb_objects (direct)."
+            help="object_properties (stage 2) | property_objects (stage 2b) | verb_objects "
+            "(direct) | verb_properties (stage 1)."
         ),
     ] = "object_properties",
 ) -> None:
-    """List stage-2 prompts with no answer yet (subject, gloss or definition, named set,
-    rendered prompt), as JSON."""
+    """List prompts with no answer yet (subject, gloss or definition, named set, rendered
+    prompt), as JSON."""
     from craft_e.compiler.cache import RecordCache
     from craft_e.compiler.curate import (
         pending_direct_requests,
         pending_object_requests,
         pending_property_requests,
+        pending_verb_requests,
     )
     from craft_e.compiler.sources.llm import LLMSource, SourceError
     from craft_e.compiler.vocab import VocabError, read_vocabulary
 
     try:
-        v = read_vocabulary(verbs, kind="verbs").names
+        vv = read_vocabulary(verbs, kind="verbs")
         ov = read_vocabulary(objects, kind="objects")
         listers = {
             "object_properties": pending_object_requests,
             "property_objects": pending_property_requests,
             "verb_objects": pending_direct_requests,
+            "verb_properties": pending_verb_requests,
         }
         if prompt not in listers:
             fail(f"unknown prompt {prompt!r}; choose one of {', '.join(listers)}")
         lister = listers[prompt]
         pending = lister(
             LLMSource(RecordCache(cache)),
-            v,
+            vv.names,
             ov.names,
             version=_prompt_version(prompts),
             glosses=ov.glosses,
+            verb_glosses=vv.glosses,
         )
     except VocabError as exc:
         fail(str(exc))

@@ -98,21 +98,23 @@ def record_answers(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
 ) -> CurationResult:
     """Validate each answer in ``answers`` (JSONL) and store it as the record of its prompt."""
     result = CurationResult(0, 0, [])
     pending: dict[str, PromptCall] = {}
+    senses = verb_glosses or {}
     if prompt_id == "object_properties":
-        properties, definitions = _stage1_properties(source, verbs, version)
+        properties, definitions = _stage1_properties(source, verbs, version, senses)
         _, calls = plan_object_calls(
             source, objects, properties, version=version, glosses=glosses, definitions=definitions
         )
         pending = {c.subject: c for c in calls}
     elif prompt_id == "verb_objects" and version != "v1":
-        _, calls = plan_direct_calls(source, verbs, objects, glosses or {})
+        _, calls = plan_direct_calls(source, verbs, objects, glosses or {}, senses)
         pending = {c.subject: c for c in calls}
     elif prompt_id == "property_objects":
-        properties, definitions = _stage1_properties(source, verbs, version)
+        properties, definitions = _stage1_properties(source, verbs, version, senses)
         _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
         pending = {c.subject: c for c in calls}
     for lineno, row in _read_answers(answers):
@@ -129,7 +131,8 @@ def record_answers(
             elif prompt_id == "verb_properties":
                 vp2 = VerbPropertiesV2.model_validate(row)
                 payload = vp2.model_dump(mode="json")
-                call = verb_call(normalize_verb(vp2.verb), version=version)
+                verb = normalize_verb(vp2.verb)
+                call = verb_call(verb, version=version, gloss=senses.get(verb, ""))
                 if not 3 <= len(vp2.properties) <= call.variables["k"]:
                     raise CurationError(
                         f"{where}: {vp2.verb!r} has {len(vp2.properties)} properties, the prompt "
@@ -209,13 +212,15 @@ def record_answers(
 
 
 def _stage1_properties(
-    source: LLMSource, verbs: list[str], version: str
+    source: LLMSource, verbs: list[str], version: str, verb_glosses: dict[str, str] | None = None
 ) -> tuple[list[str], dict[str, str]]:
     """The stage-1 property names of ``verbs`` and (v2) their definitions, first one kept."""
     props: set[str] = set()
     definitions: dict[str, str] = {}
     for verb in verbs:
-        record = source.fetch(verb_call(verb, version=version))
+        record = source.fetch(
+            verb_call(verb, version=version, gloss=(verb_glosses or {}).get(verb, ""))
+        )
         for name, _, definition, _ in read_verb_properties(record, version):
             prop = normalize_property(name)
             props.add(prop)
@@ -231,9 +236,10 @@ def pending_property_requests(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
 ) -> list[dict[str, object]]:
     """Stage-2b prompts still to answer: property, definition, named object set, rendered prompt."""
-    properties, definitions = _stage1_properties(source, verbs, version)
+    properties, definitions = _stage1_properties(source, verbs, version, verb_glosses)
     _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
     return [
         {
@@ -254,10 +260,11 @@ def pending_direct_requests(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
 ) -> list[dict[str, object]]:
     """Direct (v2) prompts still to answer: verb, the objects no record covers, rendered prompt."""
     del version  # the direct prompt grows incrementally from v2 on
-    _, calls = plan_direct_calls(source, verbs, objects, glosses or {})
+    _, calls = plan_direct_calls(source, verbs, objects, glosses or {}, verb_glosses)
     return [
         {
             "verb": c.subject,
@@ -275,10 +282,11 @@ def pending_object_requests(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
 ) -> list[dict[str, object]]:
     """What a curator still has to answer: object (+ gloss) + the named property set to score,
     and the exact rendered user message the answer replies to."""
-    properties, definitions = _stage1_properties(source, verbs, version)
+    properties, definitions = _stage1_properties(source, verbs, version, verb_glosses)
     _, calls = plan_object_calls(
         source, objects, properties, version=version, glosses=glosses, definitions=definitions
     )
@@ -291,4 +299,28 @@ def pending_object_requests(
             "prompt": c.template.render(**c.variables)[1].content,
         }
         for c in calls
+    ]
+
+
+def pending_verb_requests(
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
+) -> list[dict[str, object]]:
+    """Stage-1 prompts still to answer: verb (+ the sense it is asked in) and rendered prompt."""
+    del objects, glosses  # stage 1 names no objects
+    senses = verb_glosses or {}
+    calls = [verb_call(v, version=version, gloss=senses.get(v, "")) for v in verbs]
+    return [
+        {
+            "verb": c.subject,
+            "gloss": str(c.variables.get("verb_gloss", "")),
+            "prompt": c.template.render(**c.variables)[1].content,
+        }
+        for c in calls
+        if source.lookup(c) is None
     ]

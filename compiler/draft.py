@@ -33,6 +33,7 @@ class KnowledgeDraft:
     sources: list[SourceInfo] = field(default_factory=list)
     definitions: dict[str, str] = field(default_factory=dict)  # property -> one-line sense
     glosses: dict[str, str] = field(default_factory=dict)  # object -> sense it was asked in
+    verb_glosses: dict[str, str] = field(default_factory=dict)  # verb -> sense it was asked in
     drops: list[DropRecord] = field(default_factory=list)
     counters: dict[str, Counter[str]] = field(default_factory=dict)
 

@@ -49,6 +49,8 @@ def build_graph(draft: KnowledgeDraft) -> nx.DiGraph:
     graph = nx.DiGraph()
     for verb in draft.verbs:
         graph.add_node(f"verb:{verb}", kind="verb", name=verb)
+        if draft.verb_glosses.get(verb):  # the sense the verb was asked in (prompt v3)
+            graph.nodes[f"verb:{verb}"]["gloss"] = draft.verb_glosses[verb]
     for obj in draft.objects:
         graph.add_node(f"obj:{obj}", kind="object", name=obj)
         if draft.glosses.get(obj):  # the sense the object was asked in (prompt v2)

@@ -37,8 +37,26 @@ Progress = Callable[[str, int], None]
 NO_GLOSS = "its most common everyday sense"
 
 
-def verb_call(verb: str, k: int = K_PROPERTIES, version: str = DEFAULT_PROMPT_VERSION) -> PromptCall:
-    return PromptCall(load_prompt("verb_properties", version), verb, {"verb": verb, "k": k})
+#: Version of the verb prompts (stage 1, direct) for a verb meant in a stated sense: v2 plus the
+#: verb's vocabulary gloss. Only glossed verbs are asked with it, so every unglossed verb keeps
+#: its v2 record (a gloss on one verb never invalidates the others' answers).
+SENSED_VERB_VERSION = "v3"
+
+
+def verb_prompt_version(version: str, verb_gloss: str = "") -> str:
+    """The template version a verb is asked with: v1 states no sense, so a gloss is ignored."""
+    return SENSED_VERB_VERSION if verb_gloss and version != "v1" else version
+
+
+def verb_call(
+    verb: str, k: int = K_PROPERTIES, version: str = DEFAULT_PROMPT_VERSION, gloss: str = ""
+) -> PromptCall:
+    """Stage-1 call; a glossed verb (prompt v2) is asked with its sense (template v3)."""
+    asked = verb_prompt_version(version, gloss)
+    variables: dict[str, object] = {"verb": verb, "k": k}
+    if asked == SENSED_VERB_VERSION:
+        variables["verb_gloss"] = gloss
+    return PromptCall(load_prompt("verb_properties", asked), verb, variables)
 
 
 def object_call(
@@ -84,22 +102,24 @@ def direct_call(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_gloss: str = "",
 ) -> PromptCall:
+    """Direct call; from v2 on objects are glossed, and a glossed verb is asked in its sense."""
     if version == "v1":
         return PromptCall(
             load_prompt("verb_objects", version),
             verb,
             {"verb": verb, "objects": sorted(objects), "object_list": format_list(objects)},
         )
-    return PromptCall(
-        load_prompt("verb_objects", version),
-        verb,
-        {
-            "verb": verb,
-            "objects": sorted(objects),
-            "object_list": format_glossed_list(objects, glosses or {}),
-        },
-    )
+    asked = verb_prompt_version(version, verb_gloss)
+    variables: dict[str, object] = {
+        "verb": verb,
+        "objects": sorted(objects),
+        "object_list": format_glossed_list(objects, glosses or {}),
+    }
+    if asked == SENSED_VERB_VERSION:
+        variables["verb_gloss"] = verb_gloss
+    return PromptCall(load_prompt("verb_objects", asked), verb, variables)
 
 
 def records_by_subject(source: LLMSource, prompt_ref: str) -> dict[str, list[Record]]:
@@ -129,7 +149,9 @@ def plan_object_calls(
     glosses: dict[str, str] | None = None,
     definitions: dict[str, str] | None = None,
 ) -> tuple[dict[str, list[Record]], list[PromptCall]]:
-    """Which records cover each object, and the new calls needed for uncovered properties."""
+    """Which records cover each object, and the new calls needed for uncovered properties.
+
+    (With ``object_pass="reuse"`` the build reads the covering records and drops the calls.)"""
     index = index_object_records(source, version)
     glosses = glosses or {}
     wanted = set(properties)
@@ -293,14 +315,22 @@ def llm_property_draft(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
+    ask_objects: bool = True,
 ) -> KnowledgeDraft:
-    """The paper's CRAFT-E KB: verb -> k properties -> objects, both stages from ``source``."""
+    """The paper's CRAFT-E KB: verb -> k properties -> objects, both stages from ``source``.
+
+    ``ask_objects=False`` (``--object-pass reuse``) reads the recorded per-object answers but asks
+    no new per-object prompt: pairs none covers are left to stage 2b, which judges one property
+    against every object in one prompt (adding a verb then costs a prompt per new property, not
+    one per object)."""
     draft = KnowledgeDraft(verbs=list(verbs), objects=list(objects))
     if version != "v1":  # v1 prompts did not state a sense: the graph must not claim one
         draft.glosses = {o: g for o, g in (glosses or {}).items() if o in set(objects)}
+        draft.verb_glosses = {v: g for v, g in (verb_glosses or {}).items() if v in set(verbs)}
     stage1 = "stage1_verb_properties"
     verb_records = source.fetch_many(
-        [verb_call(v, version=version) for v in verbs],
+        [verb_call(v, version=version, gloss=draft.verb_glosses.get(v, "")) for v in verbs],
         on_done=(lambda c: progress(stage1, 1)) if progress else None,
     )
     for verb, record in zip(verbs, verb_records, strict=True):
@@ -341,6 +371,9 @@ def llm_property_draft(
         glosses=draft.glosses,
         definitions=draft.definitions,
     )
+    if not ask_objects and new_calls:
+        draft.count(stage2, "objects with properties left to stage 2b", len(new_calls))
+        new_calls = []
     new_records = source.fetch_many(
         new_calls, on_done=(lambda c: progress(stage2, 1)) if progress else None
     )
@@ -384,6 +417,7 @@ def llm_property_draft(
             model=source.model,
             prompts=[
                 load_prompt("verb_properties", version).ref,
+                *_sensed_refs("verb_properties", draft.verb_glosses),
                 load_prompt("object_properties", version).ref,
             ],
             records=len(verb_records) + used_records,
@@ -400,6 +434,7 @@ def direct_llm_draft(
     *,
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
 ) -> KnowledgeDraft:
     """The direct-LLM baseline as a bundle: verb -> ``direct: <verb>`` -> ranked objects.
 
@@ -409,6 +444,7 @@ def direct_llm_draft(
     draft = KnowledgeDraft(verbs=list(verbs), objects=list(objects))
     if version != "v1":
         draft.glosses = {o: g for o, g in (glosses or {}).items() if o in set(objects)}
+        draft.verb_glosses = {v: g for v, g in (verb_glosses or {}).items() if v in set(verbs)}
     stage = "direct_verb_objects"
     vocabulary = set(objects)
     if version == "v1":
@@ -418,7 +454,9 @@ def direct_llm_draft(
         )
         by_verb = {v: [r] for v, r in zip(verbs, records, strict=True)}
     else:
-        by_verb, calls = plan_direct_calls(source, verbs, objects, glosses or {})
+        by_verb, calls = plan_direct_calls(
+            source, verbs, objects, glosses or {}, draft.verb_glosses
+        )
         fetched = source.fetch_many(
             calls, on_done=(lambda c: progress(stage, 1)) if progress else None
         )
@@ -451,7 +489,10 @@ def direct_llm_draft(
             kind="llm",
             provider=source.provider,
             model=source.model,
-            prompts=[load_prompt("verb_objects", version).ref],
+            prompts=[
+                load_prompt("verb_objects", version).ref,
+                *_sensed_refs("verb_objects", draft.verb_glosses),
+            ],
             records=len(records),
         )
     )
@@ -467,22 +508,40 @@ def offered_objects(record: Record) -> dict[str, str]:
     return offered
 
 
+def _sensed_refs(prompt_id: str, verb_glosses: dict[str, str]) -> list[str]:
+    """The sensed template's ref when some verb was asked with it (unglossed KBs list none, so
+    their manifests are unchanged)."""
+    return [load_prompt(prompt_id, SENSED_VERB_VERSION).ref] if verb_glosses else []
+
+
 def plan_direct_calls(
-    source: LLMSource, verbs: list[str], objects: list[str], glosses: dict[str, str]
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    glosses: dict[str, str],
+    verb_glosses: dict[str, str] | None = None,
 ) -> tuple[dict[str, list[Record]], list[PromptCall]]:
     """Direct (v2) records covering each verb's objects, and calls for the objects none covers.
 
     A record covers an object it offered in the same sense (gloss), so growing the vocabulary
     asks each verb only about the new objects; confidences are absolute, so answers about
-    different object sets combine.
+    different object sets combine. A glossed verb is covered only by records asked in its sense.
     """
-    index = records_by_subject(source, load_prompt("verb_objects", "v2").ref)
+    verb_glosses = verb_glosses or {}
+    plain = records_by_subject(source, load_prompt("verb_objects", "v2").ref)
+    sensed = records_by_subject(source, load_prompt("verb_objects", SENSED_VERB_VERSION).ref)
     covering: dict[str, list[Record]] = {}
     calls: list[PromptCall] = []
     for verb in verbs:
         useful: list[Record] = []
         covered: set[str] = set()
-        for record in sorted(index.get(verb, []), key=lambda r: r.key):
+        sense = verb_glosses.get(verb, "")
+        candidates = (
+            [r for r in sensed.get(verb, []) if r.request.variables.get("verb_gloss") == sense]
+            if sense
+            else plain.get(verb, [])
+        )
+        for record in sorted(candidates, key=lambda r: r.key):
             same_sense = {
                 o for o, g in offered_objects(record).items() if g == glosses.get(o, "")
             } & set(objects)
@@ -492,7 +551,9 @@ def plan_direct_calls(
         covering[verb] = useful
         missing = [o for o in objects if o not in covered]
         if missing:
-            calls.append(direct_call(verb, missing, version="v2", glosses=glosses))
+            calls.append(
+                direct_call(verb, missing, version="v2", glosses=glosses, verb_gloss=sense)
+            )
     return covering, calls
 
 

@@ -39,7 +39,10 @@ PAYLOADS: dict[str, type[BaseModel]] = {
     "property_objects": PropertyObjects,
 }
 #: Payload models whose shape changed with a prompt version (``<id>@<version>``).
-VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {"verb_properties@v2": VerbPropertiesV2}
+VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {
+    "verb_properties@v2": VerbPropertiesV2,
+    "verb_properties@v3": VerbPropertiesV2,  # v2 + the verb's sense; same answer shape
+}
 #: v2 asks for discriminating, defined properties and reads objects in a glossed sense
 #: (issue 9); v1 stays loadable so its records keep replaying.
 PROMPT_VERSIONS = ("v1", "v2")

@@ -20,7 +20,7 @@ import re
 from pathlib import Path
 
 from craft_e.paths import VOCAB_DIR, shared_dir
-from craft_e.schemas.names import normalize_name
+from craft_e.schemas.names import normalize_name, normalize_verb
 
 EXAMPLE = re.compile(r';?\s*"[^"]*"')
 
@@ -101,6 +101,26 @@ def main() -> None:
     default = VOCAB_DIR / "default_objects.txt"
     default.write_text(union.read_text(encoding="utf-8") + "\n".join(household) + "\n", encoding="utf-8")
     print(f"wrote {len(names) + len(household)} glossed names to {default}")
+    write_verb_glosses()
+
+
+def write_verb_glosses() -> None:
+    """Gloss the verbs that artifacts/vocab/written_verb_glosses.tsv names, in every verbs file
+    holding them. A verb is glossed only where its unglossed prompt reads it in another sense
+    than its vocabulary means (Zhu et al.'s verbs say what is done *to* the object); every other
+    verb stays unglossed and keeps its answers."""
+    with (VOCAB_DIR / "written_verb_glosses.tsv").open(encoding="utf-8") as handle:
+        senses = {normalize_verb(r["verb"]): r["gloss"].strip() for r in csv.DictReader(handle, delimiter="\t")}
+    for path in sorted(VOCAB_DIR.glob("*_verbs.txt")):
+        names = [ln.split("\t", 1)[0].strip() for ln in path.read_text(encoding="utf-8").splitlines()]
+        names = [n for n in names if n]
+        if not set(names) & senses.keys():
+            continue
+        path.write_text(
+            "".join(f"{n}\t{senses[n]}\n" if n in senses else f"{n}\n" for n in names),
+            encoding="utf-8",
+        )
+        print(f"glossed {len(set(names) & senses.keys())} verbs in {path}")
 
 
 if __name__ == "__main__":

@@ -22,14 +22,16 @@ from craft_e.schemas.v1.bundle import BUNDLE_FILES, MANIFEST_FILE
 
 #: Bundles built over the benchmark union only (the others add the household vocabulary).
 UNION_ONLY = ("craft-e-v1", "conceptnet")
-#: name -> (mode, prompt version, E_aff form, stage 2b), as scripts/build_kbs builds them.
-SHIPPED: dict[str, tuple[KnowledgeMode, Literal["v1", "v2"], EnergyForm, bool]] = {
-    "craft-e-default": ("llm+direct", "v2", "normalized-product", True),
-    "craft-e-properties": ("llm", "v2", "normalized-product", True),
-    "craft-e-v1": ("llm", "v1", "sum-tanh", False),
-    "direct-llm": ("direct", "v2", "sum-tanh", False),
-    "conceptnet": ("conceptnet", "v2", "sum-tanh", False),
-    "local-llm": ("llm", "v1", "sum-tanh", False),
+#: name -> (mode, prompt version, E_aff form, stage 2b, object pass), as scripts/build_kbs builds them.
+SHIPPED: dict[
+    str, tuple[KnowledgeMode, Literal["v1", "v2"], EnergyForm, bool, Literal["ask", "reuse"]]
+] = {
+    "craft-e-default": ("llm+direct", "v2", "normalized-product", True, "reuse"),
+    "craft-e-properties": ("llm", "v2", "normalized-product", True, "reuse"),
+    "craft-e-v1": ("llm", "v1", "sum-tanh", False, "ask"),
+    "direct-llm": ("direct", "v2", "sum-tanh", False, "ask"),
+    "conceptnet": ("conceptnet", "v2", "sum-tanh", False, "ask"),
+    "local-llm": ("llm", "v1", "sum-tanh", False, "ask"),
 }
 #: Bundles replayed from a live model's records: name -> (provider, model, verbs, objects file).
 LIVE_RECORDS = {
@@ -49,7 +51,7 @@ def cold_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.mark.parametrize("name", list(SHIPPED))
 def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp_path: Path) -> None:
-    mode, prompts, form, property_pass = SHIPPED[name]
+    mode, prompts, form, property_pass, object_pass = SHIPPED[name]
     default_objects = "union_objects.txt" if name in UNION_ONLY else "default_objects.txt"
     provider, model, verbs, objects = LIVE_RECORDS.get(
         name, ("curated", "craft-e-curators", "union_verbs.txt", default_objects)
@@ -58,6 +60,7 @@ def test_shipped_bundle_rebuilds_byte_identical(name: str, cold_cache: Path, tmp
         prompt_version=prompts,
         energy_form=form,
         property_pass=property_pass,
+        object_pass=object_pass,
         provider=provider,
         model=model,
         verbs_file=VOCAB_DIR / verbs,
@@ -84,7 +87,7 @@ def test_default_bundle_covers_every_vocabulary_and_reports_gaps() -> None:
         names = [n.split("\t")[0] for n in vocab.read_text().splitlines() if n]
         assert set(names) <= set(manifest["objects"]), vocab.name
     for vocab in VOCAB_DIR.glob("*_verbs.txt"):
-        names = [n for n in vocab.read_text().splitlines() if n]
+        names = [n.split("\t")[0] for n in vocab.read_text().splitlines() if n]
         assert set(names) <= set(manifest["verbs"]), vocab.name
     coverage = report["coverage"]
     assert set(coverage) == {

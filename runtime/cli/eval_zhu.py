@@ -57,9 +57,11 @@ def eval_zhu(
     table = markdown_table(columns)
     typer.echo(table)
     if markdown is not None:
+        kbs = "".join(f" --kb {folder}" for folder in kb or [])
+        outputs = f" --markdown {markdown}" + (f" --json {json_out}" if json_out else "")
         header = (
             "# Zhu et al. 2014 dev set: AP of ranking 62 objects by E_aff\n\n"
-            "Produced by `craft eval zhu --markdown docs/zhu_dev_ap.md` (columns: bundle and "
+            f"Produced by `craft eval zhu{kbs}{outputs}` (columns: bundle and "
             "E_aff form; `chance` = positive rate).\n\n"
         )
         markdown.write_text(header + table, encoding="utf-8")

@@ -37,6 +37,7 @@ class Explanation:
     rank: int  # 1-based rank of the object among all the KB's objects for this verb
     n_objects: int
     gloss: str = ""  # the sense the object was asked in (prompt v2 bundles)
+    verb_gloss: str = ""  # the sense the verb was asked in (glossed verbs, prompt v3)
     definitions: dict[str, str] | None = None  # property -> its one-line definition (v2)
     roles: dict[str, str] | None = None  # property -> "required" | "helpful" for this verb (v2)
 
@@ -44,6 +45,8 @@ class Explanation:
         """Human-readable: E_aff, rank, then each path strongest first with short record ids."""
         lines = [f"{self.verb} -> {self.obj} in {self.kb}: E_aff = {self.e_aff:+.4f} "
                  f"({self.energy_form}, tau = {self.tau:g}); rank {self.rank} of {self.n_objects} objects"]
+        if self.verb_gloss:
+            lines.append(f"{self.verb} (verb): {self.verb_gloss}")
         if self.gloss:
             lines.append(f"{self.obj}: {self.gloss}")
         if self.forbidden:
@@ -97,5 +100,6 @@ def explain_pair(bundle: Bundle, verb: str, obj: str) -> Explanation:
         verb=v, obj=o, kb=kb, e_aff=e, energy_form=m.energy.form, tau=m.energy.tau,
         paths=bundle.paths(v, o), forbidden=(v, o) in set(g.forbidden_pairs()),
         rank=int((row < e).sum()) + 1, n_objects=len(m.objects),
-        gloss=g.gloss(o) or "", definitions=definitions, roles=roles,
+        gloss=g.gloss(o) or "", verb_gloss=g.verb_gloss(v) or "", definitions=definitions,
+        roles=roles,
     )

@@ -25,7 +25,7 @@ PREFIX: dict[NodeKind, str] = {"verb": "verb:", "property": "prop:", "object": "
 
 class GraphNode(BaseModel):
     """A verb, property or object. Properties of v2 KBs carry a ``definition`` fixing their
-    sense, objects a ``gloss``; a verb may list ``forbidden_objects`` ("never pick X for V")."""
+    sense, objects (and glossed verbs) a ``gloss``; a verb may list ``forbidden_objects`` ("never pick X for V")."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -126,6 +126,11 @@ class KnowledgeGraph(BaseModel):
 
     def gloss(self, obj: str) -> str | None:
         node = self.node.get(PREFIX["object"] + obj)
+        return None if node is None else node.gloss
+
+    def verb_gloss(self, verb: str) -> str | None:
+        """The sense a glossed verb was asked in (None for unglossed verbs and older KBs)."""
+        node = self.node.get(PREFIX["verb"] + verb)
         return None if node is None else node.gloss
 
     def forbidden_pairs(self) -> list[tuple[str, str]]:
