@@ -24,31 +24,16 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from safetensors.numpy import save as save_safetensors
 
-from craft_e import __version__
-from craft_e.compiler.cache import RecordCache
-from craft_e.compiler.draft import KnowledgeDraft
-from craft_e.compiler.embed import EmbeddingCache
-from craft_e.compiler.emit import check_out_path, file_digest, write_bundle
-from craft_e.compiler.graph import build_graph, check_draft, coverage, graph_json, weight_matrices
-from craft_e.compiler.llm_knowledge import (
-    add_direct_paths,
-    add_property_pass,
-    direct_llm_draft,
-    llm_property_draft,
-)
-from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION
-from craft_e.compiler.rdf import graph_turtle
-from craft_e.compiler.sources.llm import LLMSource, Transport
-from craft_e.compiler.vocab import Vocabulary, read_vocabulary
-from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
-from craft_e.runtime.grounding.energies import (
+from .. import __version__
+from ..runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
+from ..runtime.grounding.energies import (
     FORBIDDEN_ENERGY,
     EnergyForm,
     affordance_energy_matrix,
 )
-from craft_e.runtime.grounding.open_world import fit_open_world, open_world_json
-from craft_e.runtime.kb.diagnostics import diagnostics_model
-from craft_e.schemas.v1.bundle import (
+from ..runtime.grounding.open_world import fit_open_world, open_world_json
+from ..runtime.kb.diagnostics import diagnostics_model
+from ..schemas.v1.bundle import (
     UNSEALED,
     BuildInfo,
     BundleReport,
@@ -57,9 +42,24 @@ from craft_e.schemas.v1.bundle import (
     TextEncoderInfo,
     sealed,
 )
+from .cache import RecordCache
+from .draft import KnowledgeDraft
+from .embed import EmbeddingCache
+from .emit import check_out_path, file_digest, write_bundle
+from .graph import build_graph, check_draft, coverage, graph_json, weight_matrices
+from .llm_knowledge import (
+    add_direct_paths,
+    add_property_pass,
+    direct_llm_draft,
+    llm_property_draft,
+)
+from .prompts import DEFAULT_PROMPT_VERSION
+from .rdf import graph_turtle
+from .sources.llm import LLMSource, Transport
+from .vocab import Vocabulary, read_vocabulary
 
 if TYPE_CHECKING:
-    from craft_e.compiler.sources.batch import BatchLLMSource
+    from .sources.batch import BatchLLMSource
 
 KnowledgeMode = Literal["llm", "conceptnet", "direct", "llm+direct"]
 VERB_TEMPLATE = "something to {verb}"
@@ -117,7 +117,7 @@ def _source_pass(
     batch: BatchLLMSource | None = None,
 ) -> KnowledgeDraft:
     if config.mode == "conceptnet":
-        from craft_e.compiler.sources.conceptnet import conceptnet_draft
+        from .sources.conceptnet import conceptnet_draft
 
         return conceptnet_draft(verbs.names, objects.names, config.conceptnet, cache, progress)
     source = batch or LLMSource(
@@ -150,7 +150,7 @@ def _source_pass(
 
 def _overrides_pass(config: BuildConfig, draft: KnowledgeDraft) -> None:
     if config.overrides_file is not None:
-        from craft_e.compiler.sources.overrides import apply_overrides
+        from .sources.overrides import apply_overrides
 
         apply_overrides(draft, config.overrides_file)
 

@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from craft_e.schemas.v1.records import Record
+from ..schemas.v1.records import Record
 
 if TYPE_CHECKING:
-    from craft_e.compiler.prompts import PromptTemplate
+    from .prompts import PromptTemplate
 
 
 class CacheError(RuntimeError):
@@ -402,7 +402,7 @@ def _check_llm_payload(record: Record) -> None:
     """``verify`` also checks an LLM record's payload against its raw response."""
     if record.source != "llm":
         return
-    from craft_e.compiler.prompts import PromptError, load_prompt
+    from .prompts import PromptError, load_prompt
 
     prompt_id, _, version = record.request.prompt.partition("@")
     try:

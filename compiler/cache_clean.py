@@ -26,9 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from craft_e.compiler.cache import MAX_RECORD_BYTES, CacheError, RecordCache
-from craft_e.compiler.draft import KnowledgeDraft
-from craft_e.compiler.llm_knowledge import (
+from ..schemas.v1.records import Record
+from .cache import MAX_RECORD_BYTES, CacheError, RecordCache
+from .draft import KnowledgeDraft
+from .llm_knowledge import (
     add_property_pass,
     direct_llm_draft,
     llm_property_draft,
@@ -36,9 +37,8 @@ from craft_e.compiler.llm_knowledge import (
     plan_object_calls,
     plan_property_calls,
 )
-from craft_e.compiler.sources.llm import LLMSource, PromptCall
-from craft_e.compiler.vocab import read_vocabulary
-from craft_e.schemas.v1.records import Record
+from .sources.llm import LLMSource, PromptCall
+from .vocab import read_vocabulary
 
 _KEY = re.compile(r"^[0-9a-f]{64}$")
 CLEAN_MODES = ("llm", "direct", "llm+direct")
@@ -158,7 +158,7 @@ def build_references(
 def with_siblings(cache: RecordCache, keys: set[str]) -> set[str]:
     """``keys`` plus every ``llm`` record with the same provider, model, prompt and subject as
     one of them (the default protection of shipped bundles)."""
-    from craft_e.compiler.sources.llm import LLM_SOURCE
+    from .sources.llm import LLM_SOURCE
 
     heads: dict[str, tuple[str, str, str, str]] = {}
     folder = cache.root / LLM_SOURCE
@@ -184,7 +184,7 @@ class CleanPlan:
 
 
 def plan_clean(cache: RecordCache, referenced: set[str], graphs: list[Path]) -> CleanPlan:
-    from craft_e.compiler.sources.llm import LLM_SOURCE
+    from .sources.llm import LLM_SOURCE
 
     drop: list[tuple[Path, str]] = []
     kept = size = 0

@@ -25,11 +25,11 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
-from craft_e.compiler.cli_diagnose import register as register_diagnose
-from craft_e.compiler.cli_pack import register as register_pack
-from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
-from craft_e.paths import CACHE_DIR, KB_DIR, VOCAB_DIR
-from craft_e.runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
+from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR
+from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
+from .cli_diagnose import register as register_diagnose
+from .cli_pack import register as register_pack
+from .prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
 
 app = typer.Typer(
     help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
@@ -166,11 +166,11 @@ def build(
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
     from pydantic import ValidationError
 
-    from craft_e.compiler.build import BuildConfig
-    from craft_e.compiler.build import build as run_build
-    from craft_e.compiler.cache import CacheError
-    from craft_e.compiler.sources.llm import SourceError
-    from craft_e.compiler.vocab import VocabError
+    from .build import BuildConfig
+    from .build import build as run_build
+    from .cache import CacheError
+    from .sources.llm import SourceError
+    from .vocab import VocabError
 
     if provider not in PROVIDERS:
         fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")
@@ -183,7 +183,7 @@ def build(
     transport = None
     batch_backend = None
     if provider.endswith("-batch"):
-        from craft_e.compiler.sources.batch import make_batch_backend
+        from .sources.batch import make_batch_backend
 
         try:
             batch_backend = make_batch_backend(provider, model, base_url, timeout_s=timeout)
@@ -191,7 +191,7 @@ def build(
             fail(str(exc))
         identity, model_id = batch_backend.provider, batch_backend.model
     elif provider != "replay":
-        from craft_e.compiler.sources.transports import make_transport
+        from .sources.transports import make_transport
 
         try:
             transport = make_transport(provider, model=model, base_url=base_url, timeout_s=timeout)
@@ -234,8 +234,8 @@ def build(
 
             batch = None
             if batch_backend is not None:
-                from craft_e.compiler.cache import RecordCache
-                from craft_e.compiler.sources.batch import BatchLLMSource
+                from .cache import RecordCache
+                from .sources.batch import BatchLLMSource
 
                 batch = BatchLLMSource(
                     cache=RecordCache(config.cache_root),
@@ -288,7 +288,7 @@ def _progress(quiet: bool) -> Progress:
 @app.command()
 def validate(bundle: Annotated[Path, typer.Argument(help="Bundle folder.")]) -> None:
     """Verify a bundle: schema, per-file sha256, content hash, internal consistency."""
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from ..runtime.kb.bundle import BundleError, load_bundle
 
     try:
         kb = load_bundle(bundle, check_encoder=False)
@@ -317,14 +317,14 @@ def diff(
     ] = None,
 ) -> None:
     """Structural and behavioural differences between two bundles (Markdown for a PR)."""
-    from craft_e.compiler.diff import (
+    from ..runtime.kb.bundle import BundleError, load_bundle
+    from .diff import (
         DiffError,
         diff_bundles,
         gate_failures,
         parse_rules,
         render_markdown,
     )
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
 
     if format not in ("md", "json"):
         fail(f"unknown format {format!r}; use md or json")
@@ -352,8 +352,8 @@ def explain(
     obj: Annotated[str, typer.Argument(metavar="OBJECT", help="Object, e.g. knife.")],
 ) -> None:
     """Print the verb -> property -> object paths behind E_aff(verb, object)."""
-    from craft_e.runtime.grounding.explain import UnknownNameError, explain_pair
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from ..runtime.grounding.explain import UnknownNameError, explain_pair
+    from ..runtime.kb.bundle import BundleError, load_bundle
 
     try:
         kb = load_bundle(bundle, check_encoder=False)
@@ -374,7 +374,7 @@ def review(
     """Print random verb -> property -> object paths with weights, for a human read."""
     import random
 
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from ..runtime.kb.bundle import BundleError, load_bundle
 
     try:
         kb = load_bundle(bundle, check_encoder=False)
@@ -391,7 +391,7 @@ def schema(
     write: Annotated[bool, typer.Option(help="Regenerate schemas/v1/json/*.schema.json.")] = False,
 ) -> None:
     """Print (or regenerate) the JSON Schemas of every v1 artifact."""
-    from craft_e.schemas.generate import SCHEMA_DIR, generate_all, write_all
+    from ..schemas.generate import SCHEMA_DIR, generate_all, write_all
 
     if write:
         for path in write_all():
@@ -406,7 +406,7 @@ def schema(
 @cache_app.command("verify")
 def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
     """Re-hash every record; report corrupt and orphaned files (exit 1 if any)."""
-    from craft_e.compiler.cache import CacheError, RecordCache
+    from .cache import CacheError, RecordCache
 
     try:
         report = RecordCache(cache).verify()
@@ -441,7 +441,7 @@ def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
 @cache_app.command("index")
 def cache_index(cache: CacheOpt = CACHE_DIR) -> None:
     """Add records missing from each source's SHA256SUMS (never changes an existing entry)."""
-    from craft_e.compiler.cache import CacheError, RecordCache
+    from .cache import CacheError, RecordCache
 
     store = RecordCache(cache)
     bad = 0
@@ -470,7 +470,7 @@ def cache_stats(
     ] = False,
 ) -> None:
     """Records and bytes per source, provider, model and prompt version."""
-    from craft_e.compiler.cache import RecordCache
+    from .cache import RecordCache
 
     store = RecordCache(cache)
     if not table:
@@ -516,16 +516,16 @@ def cache_clean(
     provider, model, prompt and subject), and with --verbs every record a replay build of
     those inputs reads. SHA256SUMS stays consistent.
     """
-    from craft_e.compiler.cache import CacheError, RecordCache
-    from craft_e.compiler.cache_clean import (
+    from .cache import CacheError, RecordCache
+    from .cache_clean import (
         ReferencesError,
         build_references,
         bundle_references,
         plan_clean,
         with_siblings,
     )
-    from craft_e.compiler.sources.llm import LLM_SOURCE, SourceError
-    from craft_e.compiler.vocab import VocabError
+    from .sources.llm import LLM_SOURCE, SourceError
+    from .vocab import VocabError
 
     store = RecordCache(cache)
     try:
@@ -578,10 +578,10 @@ def curate_record(
     prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
 ) -> None:
     """Store written answers as provider-'curated' records of their rendered prompts."""
-    from craft_e.compiler.cache import RecordCache
-    from craft_e.compiler.curate import CurationError, record_answers
-    from craft_e.compiler.sources.llm import LLMSource, SourceError
-    from craft_e.compiler.vocab import VocabError, read_vocabulary
+    from .cache import RecordCache
+    from .curate import CurationError, record_answers
+    from .sources.llm import LLMSource, SourceError
+    from .vocab import VocabError, read_vocabulary
 
     try:
         vv = read_vocabulary(verbs, kind="verbs")
@@ -623,15 +623,15 @@ def curate_pending(
 ) -> None:
     """List prompts with no answer yet (subject, gloss or definition, named set, rendered
     prompt), as JSON."""
-    from craft_e.compiler.cache import RecordCache
-    from craft_e.compiler.curate import (
+    from .cache import RecordCache
+    from .curate import (
         pending_direct_requests,
         pending_object_requests,
         pending_property_requests,
         pending_verb_requests,
     )
-    from craft_e.compiler.sources.llm import LLMSource, SourceError
-    from craft_e.compiler.vocab import VocabError, read_vocabulary
+    from .sources.llm import LLMSource, SourceError
+    from .vocab import VocabError, read_vocabulary
 
     try:
         vv = read_vocabulary(verbs, kind="verbs")

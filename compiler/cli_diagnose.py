@@ -30,11 +30,11 @@ def register(app: typer.Typer) -> None:
         format: Annotated[str, typer.Option("--format", help="md | json")] = "md",
     ) -> None:
         """Affordant and saturated shares, hub objects, dead properties, per-verb margins."""
-        from craft_e.runtime.cli.common import fail
-        from craft_e.runtime.grounding.energies import ENERGY_FORMS, check_energy_form
-        from craft_e.runtime.grounding.grounder import affordance_energy_in_form
-        from craft_e.runtime.kb.bundle import BundleError, load_bundle
-        from craft_e.runtime.kb.diagnostics import bundle_diagnostics, markdown_summary
+        from ..runtime.cli.common import fail
+        from ..runtime.grounding.energies import ENERGY_FORMS, check_energy_form
+        from ..runtime.grounding.grounder import affordance_energy_in_form
+        from ..runtime.kb.bundle import BundleError, load_bundle
+        from ..runtime.kb.diagnostics import bundle_diagnostics, markdown_summary
 
         if format not in ("md", "json"):
             fail(f"unknown format {format!r}; use md or json")

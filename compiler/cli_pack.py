@@ -13,8 +13,8 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from craft_e.runtime.cli.common import EXIT_CHECK_FAILED, err, fail
-from craft_e.runtime.cli.common import out as console
+from ..runtime.cli.common import EXIT_CHECK_FAILED, err, fail
+from ..runtime.cli.common import out as console
 
 
 def pack(
@@ -24,7 +24,7 @@ def pack(
     compression: Annotated[str, typer.Option(help="gzip (default) | none.")] = "gzip",
 ) -> None:
     """Pack a bundle folder into one signed .craft file for shipping to robots."""
-    from craft_e.compiler.pack import PackError, UnverifiedBundleError, pack_bundle
+    from .pack import PackError, UnverifiedBundleError, pack_bundle
 
     if compression not in ("gzip", "none"):
         fail(f"unknown compression {compression!r}; use gzip or none")
@@ -52,8 +52,8 @@ def keygen(
     out: Annotated[Path, typer.Option("--out", help="Folder for craft-signing.key/.pub.")],
 ) -> None:
     """Create an Ed25519 signing key pair (private key mode 0600; never commit it)."""
-    from craft_e.compiler.pack import PackError
-    from craft_e.compiler.pack import keygen as make_keys
+    from .pack import PackError
+    from .pack import keygen as make_keys
 
     try:
         pair = make_keys(out)

@@ -15,7 +15,16 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from craft_e.compiler.llm_knowledge import (
+from ..schemas.names import normalize_name, normalize_property, normalize_verb
+from ..schemas.v1.payloads import (
+    ObjectProperties,
+    PropertyObjects,
+    VerbObjects,
+    VerbProperties,
+    VerbPropertiesV2,
+)
+from ..schemas.v1.records import Record
+from .llm_knowledge import (
     direct_call,
     plan_direct_calls,
     plan_object_calls,
@@ -23,17 +32,8 @@ from craft_e.compiler.llm_knowledge import (
     read_verb_properties,
     verb_call,
 )
-from craft_e.compiler.prompts import DEFAULT_PROMPT_VERSION
-from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
-from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
-from craft_e.schemas.v1.payloads import (
-    ObjectProperties,
-    PropertyObjects,
-    VerbObjects,
-    VerbProperties,
-    VerbPropertiesV2,
-)
-from craft_e.schemas.v1.records import Record
+from .prompts import DEFAULT_PROMPT_VERSION
+from .sources.llm import LLM_SOURCE, LLMSource, PromptCall
 
 
 class CurationError(ValueError):

@@ -19,8 +19,8 @@ import re
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from craft_e.runtime.kb.bundle import Bundle
-from craft_e.runtime.kb.diagnostics import HEADLINE, bundle_diagnostics, headline_value
+from ..runtime.kb.bundle import Bundle
+from ..runtime.kb.diagnostics import HEADLINE, bundle_diagnostics, headline_value
 
 #: Weight deltas are rounded to this many decimals before the threshold comparison, so that a
 #: change written as 0.2 -> 0.1 counts as exactly 0.1 (binary floats would say 0.1000...03).

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from craft_e.schemas.v1.bundle import DropRecord, SourceInfo
+from ..schemas.v1.bundle import DropRecord, SourceInfo
 
 
 @dataclass(frozen=True)

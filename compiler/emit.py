@@ -13,8 +13,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from craft_e.files import current_umask
-from craft_e.schemas.v1.bundle import (
+from ..files import current_umask
+from ..schemas.v1.bundle import (
     BUILD_INFO_FILE,
     BUNDLE_FILES,
     MANIFEST_FILE,

@@ -14,8 +14,8 @@ import networkx as nx
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.compiler.draft import KnowledgeDraft
-from craft_e.schemas.v1.bundle import Coverage
+from ..schemas.v1.bundle import Coverage
+from .draft import KnowledgeDraft
 
 K_PROPERTIES = 10
 STAGE = "graph_checks"

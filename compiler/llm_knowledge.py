@@ -11,26 +11,26 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable
 
-from craft_e.compiler.draft import KnowledgeDraft, Link
-from craft_e.compiler.graph import K_PROPERTIES
-from craft_e.compiler.prompts import (
-    DEFAULT_PROMPT_VERSION,
-    format_glossed_list,
-    format_list,
-    load_prompt,
-    property_set_id,
-)
-from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, PromptCall
-from craft_e.schemas.names import normalize_name, normalize_property
-from craft_e.schemas.v1.bundle import SourceInfo
-from craft_e.schemas.v1.payloads import (
+from ..schemas.names import normalize_name, normalize_property
+from ..schemas.v1.bundle import SourceInfo
+from ..schemas.v1.payloads import (
     ObjectProperties,
     PropertyObjects,
     VerbObjects,
     VerbProperties,
     VerbPropertiesV2,
 )
-from craft_e.schemas.v1.records import Record
+from ..schemas.v1.records import Record
+from .draft import KnowledgeDraft, Link
+from .graph import K_PROPERTIES
+from .prompts import (
+    DEFAULT_PROMPT_VERSION,
+    format_glossed_list,
+    format_list,
+    load_prompt,
+    property_set_id,
+)
+from .sources.llm import LLM_SOURCE, LLMSource, PromptCall
 
 Progress = Callable[[str, int], None]
 #: What the v2 object prompt says when a vocabulary entry carries no gloss.

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from craft_e.files import current_umask
-from craft_e.runtime.kb.package import (
+from ..files import current_umask
+from ..runtime.kb.package import (
     PackageError,
     PackageHeader,
     PackageSignature,
@@ -32,8 +32,8 @@ from craft_e.runtime.kb.package import (
     statement_for,
     verify_package,
 )
-from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
-from craft_e.schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, Manifest
+from ..runtime.kb.verify import BundleError, read_manifest, verify_files
+from ..schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, Manifest
 
 SIGNING_KEY_FILE = "craft-signing.key"
 PUBLIC_KEY_FILE = "craft-signing.pub"

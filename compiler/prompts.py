@@ -20,14 +20,14 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 
-from craft_e.schemas.v1.payloads import (
+from ..schemas.v1.payloads import (
     ObjectProperties,
     PropertyObjects,
     VerbObjects,
     VerbProperties,
     VerbPropertiesV2,
 )
-from craft_e.schemas.v1.records import Message
+from ..schemas.v1.records import Message
 
 #: The shipped templates (a plain folder: the package is installed unpacked, never zipped).
 PROMPTS_DIR = Path(str(resources.files("craft_e.prompts")))

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from craft_e.schemas.names import normalize_name, normalize_verb
+from ..schemas.names import normalize_name, normalize_verb
 
 
 class VocabError(ValueError):

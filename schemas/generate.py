@@ -12,10 +12,10 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from craft_e.schemas.v1.bundle import BuildInfo, BundleReport, Manifest
-from craft_e.schemas.v1.graph import KnowledgeGraph
-from craft_e.schemas.v1.payloads import ObjectProperties, VerbObjects, VerbProperties
-from craft_e.schemas.v1.records import Record
+from .v1.bundle import BuildInfo, BundleReport, Manifest
+from .v1.graph import KnowledgeGraph
+from .v1.payloads import ObjectProperties, VerbObjects, VerbProperties
+from .v1.records import Record
 
 SCHEMA_DIR = Path(__file__).resolve().parent / "v1" / "json"
 MODELS: dict[str, type[BaseModel]] = {

@@ -48,16 +48,17 @@ from urllib.parse import urlsplit
 import httpx
 from pydantic import ValidationError
 
-from craft_e.compiler.cache import CacheError, atomic_write_bytes, check_payload, extract_json
-from craft_e.compiler.sources.http_retry import make_client, response_json, send, with_retries
-from craft_e.compiler.sources.llm import (
+from ...schemas.v1.records import Record, RecordRequest
+from ..cache import CacheError, atomic_write_bytes, check_payload, extract_json
+from .http_retry import make_client, response_json, send, with_retries
+from .llm import (
     LLM_SOURCE,
     LLMSource,
     PromptCall,
     SourceError,
     TransportError,
 )
-from craft_e.compiler.sources.transports import (
+from .transports import (
     GEMINI_BASE_URL,
     GEMINI_KEY_ENV,
     GEMINI_MODEL,
@@ -69,7 +70,6 @@ from craft_e.compiler.sources.transports import (
     gemini_answer_text,
     openai_answer_text,
 )
-from craft_e.schemas.v1.records import Record, RecordRequest
 
 BATCH_PROVIDERS = ("openai-batch", "gemini-batch")
 #: Folder under the cache root holding the state of batches in flight (no records).

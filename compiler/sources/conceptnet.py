@@ -27,15 +27,15 @@ from urllib.parse import parse_qsl, urlsplit
 
 import httpx
 
-from craft_e.compiler.cache import RecordCache
-from craft_e.compiler.draft import KnowledgeDraft, Link
-from craft_e.compiler.sources.http_retry import make_client, response_json, send, with_retries
-from craft_e.compiler.sources.llm import SourceError, TransportError
-from craft_e.files import sha256_file
-from craft_e.paths import shared_dir
-from craft_e.schemas.names import normalize_name
-from craft_e.schemas.v1.bundle import SourceInfo
-from craft_e.schemas.v1.records import Record, RecordRequest
+from ...files import sha256_file
+from ...paths import shared_dir
+from ...schemas.names import normalize_name
+from ...schemas.v1.bundle import SourceInfo
+from ...schemas.v1.records import Record, RecordRequest
+from ..cache import RecordCache
+from ..draft import KnowledgeDraft, Link
+from .http_retry import make_client, response_json, send, with_retries
+from .llm import SourceError, TransportError
 
 CONCEPTNET_SOURCE = "conceptnet"
 API_PROVIDER = "conceptnet-api"

@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 import httpx
 
-from craft_e.compiler.sources.llm import FatalTransportError, TransportError
+from .llm import FatalTransportError, TransportError
 
 #: Seconds; a read timeout is generous because a model may think for a while before answering.
 CONNECT_TIMEOUT_S = 10.0

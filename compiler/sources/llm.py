@@ -18,9 +18,9 @@ from typing import Any, Protocol
 
 from pydantic import ValidationError
 
-from craft_e.compiler.cache import RecordCache, check_payload, extract_json
-from craft_e.compiler.prompts import PromptTemplate
-from craft_e.schemas.v1.records import Record, RecordRequest
+from ...schemas.v1.records import Record, RecordRequest
+from ..cache import RecordCache, check_payload, extract_json
+from ..prompts import PromptTemplate
 
 LLM_SOURCE = "llm"
 

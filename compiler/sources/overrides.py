@@ -41,9 +41,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from craft_e.compiler.draft import KnowledgeDraft, Link
-from craft_e.schemas.names import normalize_name, normalize_property, normalize_verb
-from craft_e.schemas.v1.bundle import SourceInfo
+from ...schemas.names import normalize_name, normalize_property, normalize_verb
+from ...schemas.v1.bundle import SourceInfo
+from ..draft import KnowledgeDraft, Link
 
 STAGE = "overrides"
 EDIT_KINDS = ("add", "remove", "reweight", "forbid")

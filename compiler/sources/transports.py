@@ -19,9 +19,9 @@ from typing import Any
 
 import httpx
 
-from craft_e.compiler.sources.http_retry import make_client, response_json, send
-from craft_e.compiler.sources.llm import FatalTransportError, Transport, TransportError
-from craft_e.schemas.v1.records import RecordRequest
+from ...schemas.v1.records import RecordRequest
+from .http_retry import make_client, response_json, send
+from .llm import FatalTransportError, Transport, TransportError
 
 OPENAI_BASE_URL = "https://api.openai.com/v1"
 OPENAI_MODEL = "gpt-4o-mini"

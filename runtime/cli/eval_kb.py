@@ -27,10 +27,10 @@ def eval_kb(
 ) -> None:
     """Knowledge alone: AP, AUC and 5-candidate top-1 of E_aff per verb, chance and oracle rows,
     and leave-verbs-out choice of the E_aff form."""
-    from craft_e.runtime.cli.common import err, fail
-    from craft_e.runtime.evaluation.common import emit_report, read_name_list
-    from craft_e.runtime.evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
-    from craft_e.runtime.grounding.energies import ENERGY_FORMS, check_energy_form
+    from ..evaluation.common import emit_report, read_name_list
+    from ..evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
+    from ..grounding.energies import ENERGY_FORMS, check_energy_form
+    from .common import err, fail
 
     try:
         forms = [check_energy_form(f) for f in energy_form] if energy_form else list(ENERGY_FORMS)

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from craft_e.paths import KB_DIR
+from ...paths import KB_DIR
 
 
 def eval_open_world(
@@ -22,12 +22,12 @@ def eval_open_world(
 ) -> None:
     """Objects and verbs the KB has never seen: remove them, infer them, compare AP with the
     in-KB result; abstention rate and precision; the thresholds' dev grid."""
-    from craft_e.runtime.cli.common import err, fail
-    from craft_e.runtime.evaluation.common import emit_report
-    from craft_e.runtime.evaluation.kb_eval import KBLabelsError
-    from craft_e.runtime.evaluation.open_world_eval import evaluate_open_world
-    from craft_e.runtime.grounding.energies import check_energy_form
-    from craft_e.runtime.kb.bundle import BundleError
+    from ..evaluation.common import emit_report
+    from ..evaluation.kb_eval import KBLabelsError
+    from ..evaluation.open_world_eval import evaluate_open_world
+    from ..grounding.energies import check_energy_form
+    from ..kb.bundle import BundleError
+    from .common import err, fail
 
     try:
         form = check_energy_form(energy_form) if energy_form else None

@@ -32,10 +32,10 @@ def eval_sim(
     jobs: ep.JobsOpt = 1,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
-    from craft_e.runtime.evaluation.sim_eval import LabelsError, evaluate_sim
-    from craft_e.runtime.sim.assets import SharedAssetsMissingError
-    from craft_e.runtime.sim.pipeline import PipelineConfig
-    from craft_e.runtime.sim.placement import PlacementError
+    from ..evaluation.sim_eval import LabelsError, evaluate_sim
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.pipeline import PipelineConfig
+    from ..sim.placement import PlacementError
 
     try:
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]

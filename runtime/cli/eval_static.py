@@ -32,11 +32,11 @@ def eval_static(
     jobs: ep.JobsOpt = 1,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
-    from craft_e.paths import SIM_DEV_LABELS
-    from craft_e.runtime.evaluation.sim_eval import LabelsError
-    from craft_e.runtime.evaluation.static_eval import evaluate_static, parse_noise
-    from craft_e.runtime.sim.assets import SharedAssetsMissingError
-    from craft_e.runtime.sim.placement import PlacementError
+    from ...paths import SIM_DEV_LABELS
+    from ..evaluation.sim_eval import LabelsError
+    from ..evaluation.static_eval import evaluate_static, parse_noise
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.placement import PlacementError
 
     labels_path = labels or SIM_DEV_LABELS
     try:

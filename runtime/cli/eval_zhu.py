@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from craft_e.paths import KB_DIR, shared_dir
+from ...paths import KB_DIR, shared_dir
 
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "conceptnet", KB_DIR / "direct-llm"]
 
@@ -28,15 +28,15 @@ def eval_zhu(
     ] = None,
 ) -> None:
     """Per affordance, AP of ranking the dev objects by E_aff — every E_aff form per bundle."""
-    from craft_e.runtime.cli.common import fail
-    from craft_e.runtime.evaluation.zhu import (
+    from ..evaluation.zhu import (
         chance_ap,
         evaluate_bundle,
         markdown_table,
         read_zhu_matrix,
     )
-    from craft_e.runtime.grounding.energies import ENERGY_FORMS
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from ..grounding.energies import ENERGY_FORMS
+    from ..kb.bundle import BundleError, load_bundle
+    from .common import fail
 
     path = matrix or shared_dir() / "data/affordance_dev/zhu2014_affordance_matrix.csv"
     if not path.is_file():

@@ -40,8 +40,8 @@ def install_cmd(
     ] = False,
 ) -> None:
     """Verify a signed package and make it the current KB (the old one becomes previous)."""
-    from craft_e.runtime.kb.install import InstallError, install
-    from craft_e.runtime.kb.package import DestinationError, PackageError
+    from ..kb.install import InstallError, install
+    from ..kb.package import DestinationError, PackageError
 
     try:
         result = install(
@@ -70,7 +70,7 @@ def install_cmd(
 
 def rollback_cmd(into: IntoOpt) -> None:
     """Switch current back to the previous version (run again to undo)."""
-    from craft_e.runtime.kb.install import DamagedVersionError, InstallError, rollback
+    from ..kb.install import DamagedVersionError, InstallError, rollback
 
     try:
         result = rollback(into)
@@ -92,7 +92,7 @@ def installed_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """List installed versions, marking current (*) and previous (-)."""
-    from craft_e.runtime.kb.install import InstallError, installed
+    from ..kb.install import InstallError, installed
 
     try:
         versions = installed(into, verify=verify)

@@ -37,9 +37,9 @@ def serve_cmd(
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see cli/main.py: tiny matmuls, busy cores
     import uvicorn
 
-    from craft_e.runtime.encoders import EncoderError
-    from craft_e.runtime.kb.bundle import BundleError
-    from craft_e.runtime.serve.app import ServeError, create_app, load_image_encoder
+    from ..encoders import EncoderError
+    from ..kb.bundle import BundleError
+    from ..serve.app import ServeError, create_app, load_image_encoder
 
     if image_encoder not in ("conse", "none"):
         fail(f"--image-encoder {image_encoder!r}: use conse or none")

@@ -23,11 +23,9 @@ def demo(
     threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 1,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
-    from craft_e.paths import KB_DIR, SIM_DEV_LABELS
-    from craft_e.runtime.cli.common import err, fail
-    from craft_e.runtime.cli.common import out as console
-    from craft_e.runtime.evaluation.methods import MethodSpec, build_grounders
-    from craft_e.runtime.evaluation.sim_eval import (
+    from ...paths import KB_DIR, SIM_DEV_LABELS
+    from ..evaluation.methods import MethodSpec, build_grounders
+    from ..evaluation.sim_eval import (
         LabelsError,
         SimLabels,
         default_encoder,
@@ -35,12 +33,14 @@ def demo(
         load_sim_labels,
         make_episode_specs,
     )
-    from craft_e.runtime.grounding.grounder import normalize_verb_name
-    from craft_e.runtime.grounding.settings import GroundingSettings
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
-    from craft_e.runtime.sim.env import SimEnv
-    from craft_e.runtime.sim.figures import FrameRecorder, describe, plot_episode
-    from craft_e.runtime.sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
+    from ..grounding.grounder import normalize_verb_name
+    from ..grounding.settings import GroundingSettings
+    from ..kb.bundle import BundleError, load_bundle
+    from ..sim.env import SimEnv
+    from ..sim.figures import FrameRecorder, describe, plot_episode
+    from ..sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
+    from .common import err, fail
+    from .common import out as console
 
     try:
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads)  # type: ignore[arg-type]

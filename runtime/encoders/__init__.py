@@ -21,8 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from craft_e.runtime.encoders.base import ImageEncoder, TextEncoder, as_image_encoder
-from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256, EncoderError
+from .base import ImageEncoder, TextEncoder, as_image_encoder
+from .text import MINILM_ID, MINILM_SHA256, EncoderError
 
 __all__ = ["REGISTRY", "EncoderEntry", "EncoderError", "ImageEncoder", "TextEncoder", "available",
            "load", "load_image"]
@@ -41,19 +41,19 @@ class EncoderEntry:
 
 
 def _load_minilm(**_: Any) -> Any:
-    from craft_e.runtime.encoders.text import load_text_encoder
+    from .text import load_text_encoder
 
     return load_text_encoder(MINILM_ID)
 
 
 def _load_efficientnet(**kwargs: Any) -> Any:
-    from craft_e.runtime.encoders.efficientnet import load_efficientnet_lite0
+    from .efficientnet import load_efficientnet_lite0
 
     return load_efficientnet_lite0(kwargs.get("weights"))
 
 
 def _load_conse(**kwargs: Any) -> Any:
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+    from .conse import ConSEImageEncoder
 
     return ConSEImageEncoder(**kwargs)
 
@@ -67,14 +67,14 @@ def _require(kwargs: dict[str, Any], *names: str, encoder: str) -> None:
 
 def _load_clip_image(**kwargs: Any) -> Any:
     _require(kwargs, "weights", "sha256", encoder="clip-vit-b32")
-    from craft_e.runtime.encoders.clip import ClipConfig, load_clip_image_encoder
+    from .clip import ClipConfig, load_clip_image_encoder
 
     return load_clip_image_encoder(kwargs["weights"], kwargs["sha256"], config=kwargs.get("config", ClipConfig.vit_b32()))
 
 
 def _load_clip_text(**kwargs: Any) -> Any:
     _require(kwargs, "weights", "sha256", "bpe_path", encoder="clip-vit-b32-text")
-    from craft_e.runtime.encoders.clip import ClipConfig, load_clip_text_encoder
+    from .clip import ClipConfig, load_clip_text_encoder
 
     return load_clip_text_encoder(kwargs["weights"], kwargs["sha256"], kwargs["bpe_path"],
                                   config=kwargs.get("config", ClipConfig.vit_b32()))

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.paths import CACHE_DIR
-from craft_e.runtime.encoders.image import FloatArray, UInt8Image, resize_center_crop, resize_fit
-from craft_e.runtime.encoders.text import (
+from ...paths import CACHE_DIR
+from .image import FloatArray, UInt8Image, resize_center_crop, resize_fit
+from .text import (
     MINILM_DIM,
     MINILM_ID,
     MINILM_SHA256,
@@ -138,7 +138,7 @@ class ConSEImageEncoder:
     ) -> None:
         import torch
 
-        from craft_e.runtime.encoders.efficientnet import (
+        from .efficientnet import (
             EFFICIENTNET_LITE0_SHA256,
             load_efficientnet_lite0,
         )

@@ -43,9 +43,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.files import read_json, sha256_file
-from craft_e.paths import VOCAB_DIR, shared_dir
-from craft_e.runtime.evaluation.common import (
+from ...files import read_json, sha256_file
+from ...paths import VOCAB_DIR, shared_dir
+from ..grounding.energies import object_hypotheses
+from ..grounding.grounder import normalize_verb_name
+from ..grounding.settings import GroundingSettings
+from .common import (
     ImageEmbeddingCache,
     MethodResult,
     SkippedMethod,
@@ -54,10 +57,6 @@ from craft_e.runtime.evaluation.common import (
     reciprocal_rank,
     topk_accuracy,
 )
-from craft_e.runtime.grounding.energies import object_hypotheses
-from craft_e.runtime.grounding.grounder import normalize_verb_name
-
-from ..grounding.settings import GroundingSettings
 from .methods import MethodSpec, default_methods, load_methods, method_settings
 
 IntArray = npt.NDArray[np.intp]
@@ -81,7 +80,7 @@ def dataset_dir() -> Path:
 
 
 def _norm(name: str) -> str:
-    from craft_e.schemas.names import normalize_name
+    from ...schemas.names import normalize_name
 
     try:
         return normalize_name(name)
@@ -251,7 +250,7 @@ class ImageNetReport:
 
 
 def _default_encoder(threads: int | None = None) -> Any:
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=threads)
 
@@ -260,7 +259,7 @@ def embed_dataset_images(
     data: ImageNetData, indices: Sequence[int], encoder: Any, cache_dir: Path | None, batch_size: int = 16
 ) -> FloatArray:
     """``[len(indices), d]`` embeddings of whole images, each computed once per encoder."""
-    from craft_e.runtime.encoders.image import load_image
+    from ..encoders.image import load_image
 
     cache = ImageEmbeddingCache(encoder.id, cache_dir)
     paths = [data.images[i] for i in indices]

@@ -40,16 +40,16 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.files import read_json, sha256_file
-from craft_e.paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
-from craft_e.runtime.evaluation.common import (
+from ...files import read_json, sha256_file
+from ...paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
+from ..grounding.energies import ENERGY_FORMS, EnergyForm
+from ..grounding.grounder import normalize_verb_name
+from .common import (
     MethodResult,
     SkippedMethod,
     markdown_table,
 )
-from craft_e.runtime.evaluation.zhu import average_precision, read_zhu_matrix
-from craft_e.runtime.grounding.energies import ENERGY_FORMS, EnergyForm
-from craft_e.runtime.grounding.grounder import normalize_verb_name
+from .zhu import average_precision, read_zhu_matrix
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -66,7 +66,7 @@ class KBLabelsError(ValueError):
 
 
 def _norm(name: str) -> str:
-    from craft_e.schemas.names import normalize_name
+    from ...schemas.names import normalize_name
 
     try:
         return normalize_name(name)
@@ -113,9 +113,9 @@ def zhu_labels(path: Path | None = None) -> LabelSet:
 
 def sim_labels(path: Path, name: str = "sim-dev") -> LabelSet:
     """A ``verb,object`` CSV over sim assets; candidates = every sim catalogue object name."""
-    from craft_e.runtime.evaluation.imagenet import LabelsError
-    from craft_e.runtime.evaluation.sim_eval import load_sim_labels
-    from craft_e.runtime.sim.assets import object_catalog
+    from ..sim.assets import object_catalog
+    from .imagenet import LabelsError
+    from .sim_eval import load_sim_labels
 
     try:
         labels = load_sim_labels(path)
@@ -141,7 +141,7 @@ def json_labels(path: Path, objects: Sequence[str] | None = None) -> LabelSet:
         pairs[str(verb)] = names
     candidates = raw.get("_objects") or objects
     if candidates is None:
-        from craft_e.runtime.evaluation.common import read_name_list
+        from .common import read_name_list
 
         candidates = read_name_list(VOCAB_DIR / "imagenet_objects.txt")
     return _from_names(path.stem, path, list(candidates), pairs)
@@ -326,7 +326,7 @@ class KBEvalReport:
 def _bundle_rows(bundle: Any, forms: Sequence[EnergyForm], label_sets: Sequence[LabelSet],
                  eps: dict[tuple[str, str], npt.NDArray[np.intp] | None]) -> list[Scored]:
     """One row per form; what the bundle lacks is noted once, on its first row."""
-    from craft_e.runtime.grounding.grounder import affordance_energy_in_form
+    from ..grounding.grounder import affordance_energy_in_form
 
     m = bundle.manifest
     rows: list[Scored] = []
@@ -418,7 +418,7 @@ def evaluate_kbs(
     objects: Sequence[str] | None = None,
 ) -> KBEvalReport:
     """Every bundle x form on every label set, chance and oracle rows, leave-verbs-out."""
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from ..kb.bundle import BundleError, load_bundle
 
     label_sets = [resolve_labels(s, objects) for s in label_specs]
     names = [ls.name for ls in label_sets]

@@ -33,21 +33,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.evaluation.kb_eval import (
-    LabelSet,
-    episodes,
-    resolve_labels,
-    score_energy,
-)
-from craft_e.runtime.evaluation.zhu import average_precision
-from craft_e.runtime.grounding.energies import (
+from ..grounding.energies import (
     EnergyForm,
     energy_from_property_columns,
     property_specificity,
     required_matrix_from_graph,
     weight_matrices_from_graph,
 )
-from craft_e.runtime.grounding.open_world import (
+from ..grounding.open_world import (
     OBJECT_MIN_CONFIDENCE,
     REQUEST_MIN_CONFIDENCE,
     VERB_SHARE,
@@ -56,6 +49,13 @@ from craft_e.runtime.grounding.open_world import (
     linked_weights,
     map_request,
 )
+from .kb_eval import (
+    LabelSet,
+    episodes,
+    resolve_labels,
+    score_energy,
+)
+from .zhu import average_precision
 
 F64 = npt.NDArray[np.float64]
 OBJECT_THRESHOLDS = (0.0, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6)
@@ -97,7 +97,7 @@ def _energy(kb: _KB, w_vp: F64, q_w: F64, q_l: F64, spec: F64, required: npt.NDA
 
 def _in_kb(kb: _KB, ls: LabelSet) -> F64:
     """``[V_ls, O_ls]`` E_aff of the label set's verbs x objects with everything in the KB."""
-    from craft_e.runtime.grounding.grounder import affordance_energy_in_form
+    from ..grounding.grounder import affordance_energy_in_form
 
     b = kb.bundle
     table = affordance_energy_in_form(b, kb.form)
@@ -144,7 +144,7 @@ def leave_objects_out(kb: _KB, ls: LabelSet, eps: dict[str, Any], text_encoder: 
             emb[i] = b.embeddings["object"][b.object_index[o]]
     if missing:
         if text_encoder is None:
-            from craft_e.runtime.encoders.text import load_text_encoder
+            from ..encoders.text import load_text_encoder
 
             text_encoder = load_text_encoder(m.text_encoder.id)
         emb[missing] = text_encoder.embed([ls.objects[i] for i in missing])
@@ -335,7 +335,7 @@ class OpenWorldReport:
 
 def evaluate_open_world(bundle_path: Path, label_specs: Sequence[str], *, form: EnergyForm | None = None,
                         episodes_per_verb: int = 100, seed: int = 0) -> OpenWorldReport:
-    from craft_e.runtime.kb.bundle import load_bundle
+    from ..kb.bundle import load_bundle
 
     bundle = load_bundle(bundle_path, check_encoder=False)
     kb = _kb(bundle, form or bundle.manifest.energy.form)

@@ -30,8 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
-    from craft_e.runtime.grounding.grounder import Grounder
+    from ..encoders.conse import ConSEImageEncoder
+    from ..grounding.grounder import Grounder
 
 LOOK_DISTANCE = 0.35  # m from the object's centre
 LOOK_ELEVATION = 45.0  # degrees above the table
@@ -78,10 +78,10 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
     """Each asset alone on the table ``views`` times, in one pybullet client of its own."""
     import pybullet as p
 
-    from craft_e.runtime.encoders.image import crop_box
-    from craft_e.runtime.sim.assets import object_catalog
-    from craft_e.runtime.sim.camera import Camera, render
-    from craft_e.runtime.sim.scene import SceneSpec, TableLayout, make_scene
+    from ..encoders.image import crop_box
+    from ..sim.assets import object_catalog
+    from ..sim.camera import Camera, render
+    from ..sim.scene import SceneSpec, TableLayout, make_scene
 
     catalog = object_catalog()
     camera, layout = Camera(), TableLayout()
@@ -160,13 +160,13 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     """Render every asset, then score every setting of ``SETTINGS`` on the same renders."""
     import torch
 
-    from craft_e.paths import KB_DIR
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
-    from craft_e.runtime.grounding.grounder import Grounder
-    from craft_e.runtime.grounding.settings import GroundingSettings
-    from craft_e.runtime.kb.bundle import load_bundle
-    from craft_e.runtime.sim.assets import object_catalog
-    from craft_e.runtime.sim.pipeline import sim_vocabulary
+    from ...paths import KB_DIR
+    from ..encoders.conse import ConSEImageEncoder
+    from ..grounding.grounder import Grounder
+    from ..grounding.settings import GroundingSettings
+    from ..kb.bundle import load_bundle
+    from ..sim.assets import object_catalog
+    from ..sim.pipeline import sim_vocabulary
 
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)

@@ -44,8 +44,9 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.evaluation.common import SkippedMethod
-from craft_e.runtime.evaluation.imagenet import (
+from ..grounding.settings import GroundingSettings
+from .common import SkippedMethod
+from .imagenet import (
     ImageNetReport,
     LabelsError,
     calibrate_temperature,
@@ -53,8 +54,6 @@ from craft_e.runtime.evaluation.imagenet import (
     evaluate_imagenet,
     load_dataset,
 )
-
-from ..grounding.settings import GroundingSettings
 from .methods import MethodSpec, default_methods
 
 UInt8Image = npt.NDArray[np.uint8]
@@ -384,7 +383,7 @@ def _cell(row: Mapping[str, float], spread: Mapping[str, float], show_spread: bo
 def _recognition(data: Any, class_ids: list[int], encoder: Any, cache_dir: Path | None,
                  bundle_path: Path, temperature: float) -> float | None:
     """Fraction of photos whose embedding is nearest to their own class name (pool classes)."""
-    from craft_e.runtime.kb.bundle import BundleError, load_bundle
+    from ..kb.bundle import BundleError, load_bundle
 
     try:
         bundle = load_bundle(bundle_path, check_encoder=False)
@@ -437,7 +436,7 @@ def evaluate_robustness(
     specs = list(methods) if methods is not None else default_methods(kb)
     temperature = (settings or GroundingSettings()).temperature
     if encoder is None:
-        from craft_e.runtime.encoders.conse import ConSEImageEncoder
+        from ..encoders.conse import ConSEImageEncoder
 
         encoder = ConSEImageEncoder(threads=threads)
     data = load_dataset(data_root)
@@ -501,7 +500,7 @@ def evaluate_robustness(
 
 def _norm(name: str) -> str:
     """Class names as the harness spells them (``imagenet.load_dataset`` normalizes the same way)."""
-    from craft_e.schemas.names import normalize_name
+    from ...schemas.names import normalize_name
 
     try:
         return normalize_name(name)

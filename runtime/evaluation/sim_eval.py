@@ -34,26 +34,25 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from craft_e.files import sha256_file
-from craft_e.runtime.evaluation.common import (
+from ...files import sha256_file
+from ..grounding.grounder import normalize_verb_name
+from ..grounding.settings import GroundingSettings
+from ..sim.assets import object_asset, object_catalog
+from ..sim.env import EnvConfig
+from ..sim.placement import Footprint, PlacementConfig, PlacementError, sample_layout
+from ..sim.scene import SceneSpec
+from .common import (
     MethodResult,
     SkippedMethod,
     markdown_table,
 )
-from craft_e.runtime.evaluation.imagenet import LabelsError
-from craft_e.runtime.grounding.grounder import normalize_verb_name
-from craft_e.runtime.sim.assets import object_asset, object_catalog
-from craft_e.runtime.sim.env import EnvConfig
-from craft_e.runtime.sim.placement import Footprint, PlacementConfig, PlacementError, sample_layout
-from craft_e.runtime.sim.scene import SceneSpec
-
-from ..grounding.settings import GroundingSettings
+from .imagenet import LabelsError
 from .methods import MethodSpec, build_grounders, load_methods, select_methods
 
 if TYPE_CHECKING:
-    from craft_e.runtime.encoders.image import ImageEncoder
-    from craft_e.runtime.grounding.grounder import Grounder
-    from craft_e.runtime.sim.pipeline import EpisodeResult, PipelineConfig
+    from ..encoders.image import ImageEncoder
+    from ..grounding.grounder import Grounder
+    from ..sim.pipeline import EpisodeResult, PipelineConfig
 
 DISTRACTORS = 4
 MAX_DRAWS = 50  # distractor sets tried per episode before giving up (loudly)
@@ -205,7 +204,7 @@ def settled_apart(spec: SceneSpec, env_config: EnvConfig, min_gap: float) -> boo
     """
     import pybullet as p
 
-    from craft_e.runtime.sim.env import SimEnv
+    from ..sim.env import SimEnv
 
     with SimEnv(env_config) as env:
         scene = env.reset(spec)
@@ -283,7 +282,7 @@ def make_episode_specs(
 def default_encoder(threads: int = 1) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
     (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md)."""
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=threads, preprocess="fit")
 
@@ -355,7 +354,7 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult, detect_iou: float =
 def summarize(name: str, description: str, records: Sequence[dict[str, Any]],
               settings: dict[str, Any]) -> MethodResult:
     """A method's row: 3D, Detect, Grasp Rate, the failure breakdown and per-verb rates."""
-    from craft_e.runtime.sim.pipeline import ChoiceError, Failure
+    from ..sim.pipeline import ChoiceError, Failure
 
     mine = [(r, r["methods"][name]) for r in records]
     n = max(len(mine), 1)
@@ -425,7 +424,7 @@ class SimReport:
 
     def failure_table(self) -> str:
         """Episodes per outcome class and method (the paper's failure analysis)."""
-        from craft_e.runtime.sim.pipeline import Failure
+        from ..sim.pipeline import Failure
 
         kinds = [f.value for f in Failure]
         used = [k for k in kinds if any(r.settings["failures"][k] for r in self.results)]
@@ -452,7 +451,7 @@ def _worker_context(
     runnable_specs: Sequence[MethodSpec], threads: int, settings: GroundingSettings,
 ) -> tuple[dict[str, Grounder], ImageEncoder]:
     """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
-    from craft_e.runtime.sim.pipeline import sim_vocabulary
+    from ..sim.pipeline import sim_vocabulary
 
     enc = default_encoder(threads)
     runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
@@ -463,8 +462,8 @@ def _run_one(
     cfg: PipelineConfig, env_cfg: EnvConfig, ctx: tuple[dict[str, Grounder], ImageEncoder], spec: EpisodeSpec,
 ) -> dict[str, Any]:
     """One episode in a fresh pybullet client (nothing carries over), as its JSON record."""
-    from craft_e.runtime.sim.env import SimEnv
-    from craft_e.runtime.sim.pipeline import run_episode
+    from ..sim.env import SimEnv
+    from ..sim.pipeline import run_episode
 
     grounders, enc = ctx
     with SimEnv(env_cfg) as env:
@@ -495,8 +494,8 @@ def evaluate_sim(
     """
     from functools import partial
 
-    from craft_e.runtime.evaluation.parallel import ordered_map
-    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
+    from ..sim.pipeline import PipelineConfig, sim_vocabulary
+    from .parallel import ordered_map
 
     if layouts < 1:
         raise ValueError(f"layouts must be >= 1, got {layouts}")

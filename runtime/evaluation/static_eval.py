@@ -40,27 +40,26 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.files import sha256_file
-from craft_e.runtime.evaluation.common import MethodResult, SkippedMethod
-from craft_e.runtime.evaluation.sim_eval import (
+from ...files import sha256_file
+from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect
+from ..grounding.settings import GroundingSettings
+from ..perception.roi import ROI
+from ..sim.env import EnvConfig
+from ..sim.oracle import OracleConfig, top_surface_points
+from ..sim.scene import Scene
+from .common import MethodResult, SkippedMethod
+from .methods import MethodSpec, build_grounders, load_methods, select_methods
+from .sim_eval import (
     EpisodeSpec,
     default_encoder,
     load_sim_labels,
     make_episode_specs,
 )
-from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect
-from craft_e.runtime.sim.env import EnvConfig
-from craft_e.runtime.sim.oracle import OracleConfig, top_surface_points
-from craft_e.runtime.sim.scene import Scene
-
-from ..grounding.settings import GroundingSettings
-from ..perception.roi import ROI
-from .methods import MethodSpec, build_grounders, load_methods, select_methods
 
 if TYPE_CHECKING:
-    from craft_e.runtime.encoders.image import ImageEncoder
-    from craft_e.runtime.grounding.grounder import Grounder, Grounding
-    from craft_e.runtime.perception.observation import Observation
+    from ..encoders.image import ImageEncoder
+    from ..grounding.grounder import Grounder, Grounding
+    from ..perception.observation import Observation
 
 BoolMask = npt.NDArray[np.bool_]
 Embedding = npt.NDArray[np.float32]
@@ -91,7 +90,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
 
     ``width_m`` is the object's section, not the opening.
     """
-    from craft_e.runtime.sim.oracle import grasp_at  # the oracle's own rule, shared on purpose
+    from ..sim.oracle import grasp_at  # the oracle's own rule, shared on purpose
 
     cfg = config or GTGraspConfig()
     o = cfg.oracle
@@ -189,7 +188,7 @@ def parse_noise(spec: str) -> NoiseLevel:
 def _robustness() -> Any:
     """``evaluation.robustness`` (grasp-score noise, box jitter), imported only when noise is asked."""
     try:
-        from craft_e.runtime.evaluation import robustness
+        from . import robustness
     except ImportError as exc:  # pragma: no cover - depends on the tree
         raise RuntimeError("--noise needs craft_e.runtime.evaluation.robustness "
                            f"(perturb_grasp_scores, jitter_box), which is not available: {exc}") from exc
@@ -233,12 +232,12 @@ def render_scene(
     gt_config: GTGraspConfig | None = None, torch_threads_n: int = 1, rgb_scale: int = 2,
 ) -> StaticScene:
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
-    from craft_e.runtime.encoders.image import crop_box
-    from craft_e.runtime.grasp.predict import predict_grasps
-    from craft_e.runtime.perception.segment import segment
-    from craft_e.runtime.sim.env import SimEnv
-    from craft_e.runtime.sim.oracle import gt_rois
-    from craft_e.runtime.sim.pipeline import majority_body, raster_order, torch_threads
+    from ..encoders.image import crop_box
+    from ..grasp.predict import predict_grasps
+    from ..perception.segment import segment
+    from ..sim.env import SimEnv
+    from ..sim.oracle import gt_rois
+    from ..sim.pipeline import majority_body, raster_order, torch_threads
 
     with SimEnv(env_config) as env:
         scene = env.reset(spec.scene)
@@ -285,7 +284,7 @@ def _perturbed(
     """The ROIs under a noise level (scores first, then boxes, in ROI order: reproducible)."""
     if level.clean:
         return rois
-    from craft_e.runtime.encoders.image import crop_box
+    from ..encoders.image import crop_box
 
     rb = _robustness()
     h, w = rgb.shape[:2]
@@ -314,7 +313,7 @@ def _box_iou(a: Sequence[float], b: Sequence[float]) -> float:
 
 def score_choice(scene: StaticScene, rois: list[StaticROI], grounding: Grounding) -> dict[str, Any]:
     """Detection and overall success of one grounding (see the module docstring)."""
-    from craft_e.runtime.grasp.metrics import grasp_success
+    from ..grasp.metrics import grasp_success
 
     chosen = grounding.chosen
     if chosen is None or scene.target_box is None:
@@ -334,7 +333,7 @@ def target_grasp_ok(scene: StaticScene, rois: list[StaticROI]) -> bool:
 
     The grasp module's share of the static score, the same for every method.
     """
-    from craft_e.runtime.grasp.metrics import grasp_success
+    from ..grasp.metrics import grasp_success
 
     if scene.target_box is None or not rois or not scene.target_rects:
         return False
@@ -431,8 +430,8 @@ def evaluate_static(
     byte-identical to ``jobs=1`` (``evaluation.parallel``); ``encoder`` must then be None."""
     from functools import partial
 
-    from craft_e.runtime.evaluation.parallel import ordered_map
-    from craft_e.runtime.evaluation.sim_eval import _worker_context
+    from .parallel import ordered_map
+    from .sim_eval import _worker_context
 
     bad = [b for b in backends if b not in GRASP_BACKENDS]
     if bad:
@@ -448,7 +447,7 @@ def evaluate_static(
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
                                      enc.text_encoder_id)
     settings = settings or GroundingSettings()
-    from craft_e.runtime.sim.pipeline import sim_vocabulary
+    from ..sim.pipeline import sim_vocabulary
 
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     setting_names = setting_ids(backends)

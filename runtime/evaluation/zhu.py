@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grounding.energies import EnergyForm
-from craft_e.runtime.grounding.grounder import affordance_energy_in_form
-from craft_e.runtime.kb.bundle import Bundle
-from craft_e.schemas.names import normalize_name
+from ...schemas.names import normalize_name
+from ..grounding.energies import EnergyForm
+from ..grounding.grounder import affordance_energy_in_form
+from ..kb.bundle import Bundle
 
 #: Column name in the CSV -> the verb used in our vocabularies.
 ZHU_AFFORDANCES = {

@@ -14,9 +14,8 @@ from pathlib import Path
 import torch
 from safetensors.torch import load_file
 
-from craft_e.files import sha256_file
-from craft_e.paths import shared_dir
-
+from ...files import sha256_file
+from ...paths import shared_dir
 from .base import GraspNet
 from .ggcnn import GGCNN, GGCNN2
 from .grconvnet import GenerativeResnet

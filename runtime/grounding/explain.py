@@ -10,7 +10,7 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 
-from craft_e.runtime.kb.bundle import Bundle, PathStep
+from ..kb.bundle import Bundle, PathStep
 
 
 class UnknownNameError(ValueError):
@@ -72,7 +72,7 @@ class Explanation:
 
 
 def _resolve(kind: str, raw: str, names: list[str], kb: str) -> str:
-    from craft_e.schemas.names import normalize_name, normalize_verb
+    from ...schemas.names import normalize_name, normalize_verb
 
     try:
         name = normalize_verb(raw) if kind == "verb" else normalize_name(raw)

@@ -28,8 +28,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.encoders.base import TextEncoder
-from craft_e.runtime.grounding.energies import (
+from ..encoders.base import TextEncoder
+from ..kb.bundle import Bundle, PathStep
+from ..perception.roi import ROI
+from .energies import (
     FORBIDDEN_ENERGY,
     EnergyForm,
     affordance_energy_matrix,
@@ -40,7 +42,7 @@ from craft_e.runtime.grounding.energies import (
     required_matrix_from_graph,
     weight_matrices_from_graph,
 )
-from craft_e.runtime.grounding.open_world import (
+from .open_world import (
     REQUEST_MIN_CONFIDENCE,
     REQUEST_PROPERTIES,
     REQUEST_TEMPERATURE,
@@ -54,9 +56,7 @@ from craft_e.runtime.grounding.open_world import (
     map_request,
     parse_request,
 )
-from craft_e.runtime.grounding.settings import AffMode, GroundingSettings
-from craft_e.runtime.kb.bundle import Bundle, PathStep
-from craft_e.runtime.perception.roi import ROI
+from .settings import AffMode, GroundingSettings
 
 FloatArray = npt.NDArray[np.float32]
 GRASP_SCORE_MIN = 1e-6
@@ -250,7 +250,7 @@ def _top_k(p: FloatArray, k: int) -> npt.NDArray[np.intp]:
 
 def normalize_verb_name(raw: str) -> str:
     """Verbs as the compiler writes them (lowercase, single spaces); never fails."""
-    from craft_e.schemas.names import normalize_verb
+    from ...schemas.names import normalize_verb
 
     try:
         return normalize_verb(raw)
@@ -389,7 +389,7 @@ class Grounder:
 
     @staticmethod
     def _object_name(raw: str) -> str:
-        from craft_e.schemas.names import normalize_name
+        from ...schemas.names import normalize_name
 
         try:
             return normalize_name(raw)
@@ -403,7 +403,7 @@ class Grounder:
     def _encoder(self) -> TextEncoder:
         """The bundle's text encoder, loaded on first need (unknown objects, open vocabulary)."""
         if self._text_encoder is None:
-            from craft_e.runtime.encoders.text import load_text_encoder
+            from ..encoders.text import load_text_encoder
 
             self._text_encoder = load_text_encoder(self.bundle.manifest.text_encoder.id)
         return self._text_encoder

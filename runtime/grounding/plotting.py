@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grounding.grounder import Grounding
+from .grounder import Grounding
 
 
 def _grasp_segment(grasp: Any) -> tuple[tuple[float, float], tuple[float, float]] | None:

@@ -19,13 +19,12 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import ValidationError
 
-from craft_e.schemas.v1.bundle import (
+from ...schemas.v1.bundle import (
     MANIFEST_FILE,
     BundleReport,
     Manifest,
 )
-from craft_e.schemas.v1.graph import KnowledgeGraph
-
+from ...schemas.v1.graph import KnowledgeGraph
 from .verify import (
     MAX_FILE_BYTES,
     MAX_MANIFEST_BYTES,
@@ -105,7 +104,7 @@ def load_bundle(
     """
     from safetensors.numpy import load as load_safetensors
 
-    from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
+    from ..encoders.text import MINILM_ID, MINILM_SHA256
 
     folder = Path(path)
     if folder.is_file():

@@ -130,7 +130,7 @@ def discrimination_diagnostics(
 def bundle_diagnostics(bundle: Any, energy: npt.NDArray[Any] | None = None) -> dict[str, Any]:
     """:func:`discrimination_diagnostics` of a loaded bundle (``energy``: another form's matrix,
     default the bundle's own ``affordance_energy.npy``)."""
-    from craft_e.runtime.grounding.energies import weight_matrices_from_graph
+    from ..grounding.energies import weight_matrices_from_graph
 
     m = bundle.manifest
     w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
@@ -175,6 +175,6 @@ def markdown_summary(columns: dict[str, dict[str, Any]]) -> str:
 
 def diagnostics_model(*args: Any, **kwargs: Any) -> Any:
     """:func:`discrimination_diagnostics` as the report's pydantic ``Diagnostics`` model."""
-    from craft_e.schemas.v1.bundle import Diagnostics
+    from ...schemas.v1.bundle import Diagnostics
 
     return Diagnostics.model_validate(discrimination_diagnostics(*args, **kwargs))

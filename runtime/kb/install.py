@@ -42,16 +42,16 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from craft_e.files import fsync_dir
-from craft_e.runtime.kb.package import (
+from ...files import fsync_dir
+from ...schemas.v1.bundle import Manifest
+from .package import (
     DEFAULT_LIMITS,
     Limits,
     TrustedKey,
     unpack_package,
     verify_package,
 )
-from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
-from craft_e.schemas.v1.bundle import Manifest
+from .verify import BundleError, read_manifest, verify_files
 
 VERSIONS = "versions"
 CURRENT = "current"

@@ -53,9 +53,8 @@ from typing import IO, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from craft_e.files import current_umask, fsync_dir
-from craft_e.runtime.kb.verify import BundleError, read_manifest, verify_files
-from craft_e.schemas.v1.bundle import (
+from ...files import current_umask, fsync_dir
+from ...schemas.v1.bundle import (
     BUILD_INFO_FILE,
     BUNDLE_FILES,
     MANIFEST_FILE,
@@ -63,7 +62,8 @@ from craft_e.schemas.v1.bundle import (
     content_hash,
     listed_files_ok,
 )
-from craft_e.schemas.v1.records import canonical_json
+from ...schemas.v1.records import canonical_json
+from .verify import BundleError, read_manifest, verify_files
 
 PACKAGE_MAGIC = b"CRAFTPK1"
 PACKAGE_FORMAT = "craft-package/1"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from craft_e.schemas.v1.bundle import (
+from ...schemas.v1.bundle import (
     BUNDLE_FILES,
     MANIFEST_FILE,
     Manifest,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grasp.geometry import CameraIntrinsics
+from ..grasp.geometry import CameraIntrinsics
 
 
 @dataclass(frozen=True)

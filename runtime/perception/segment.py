@@ -16,9 +16,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.perception.plane import Plane, PlaneFitConfig, fit_plane
-from craft_e.runtime.perception.roi import BoolMask, Region, roi_from_mask
+from .observation import Observation
+from .plane import Plane, PlaneFitConfig, fit_plane
+from .roi import BoolMask, Region, roi_from_mask
 
 _EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 

@@ -57,16 +57,15 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from craft_e.runtime.grounding.energies import ENERGY_FORMS, EnergyForm
-from craft_e.runtime.grounding.grounder import (
+from ..encoders.base import ImageEncoder
+from ..grounding.energies import ENERGY_FORMS, EnergyForm
+from ..grounding.grounder import (
     Grounder,
     Grounding,
     UnknownVerbError,
 )
-from craft_e.runtime.kb.bundle import Bundle, load_bundle
-
-from ..encoders.base import ImageEncoder
 from ..grounding.settings import GroundingSettings
+from ..kb.bundle import Bundle, load_bundle
 from ..perception.roi import ROI, BoxSpec, RoiError, build_rois
 
 #: Candidate regions per request. A tabletop scene has a handful; the bound keeps one request's
@@ -425,7 +424,7 @@ def build_service(
                          f"the bundle's text encoder is {space}; serve a matching bundle")
     text_encoder = None
     if settings.open_vocab:  # load the text encoder now, not on the first unknown verb
-        from craft_e.runtime.encoders.text import load_text_encoder
+        from ..encoders.text import load_text_encoder
 
         text_encoder = load_text_encoder(space)
     default: EnergyForm = bundle.manifest.energy.form
@@ -679,6 +678,6 @@ def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1) -> Ima
     """The image encoder for ``/ground_image`` (``none``: the endpoint answers 503)."""
     if name == "none":
         return None
-    from craft_e.runtime.encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=threads)

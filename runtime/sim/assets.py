@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
-from craft_e.paths import shared_dir
+from ...paths import shared_dir
 
 CATALOG_FILE = Path(__file__).with_name("objects.json")
 

@@ -14,9 +14,9 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.grasp.geometry import CameraIntrinsics
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.transforms import look_at
+from ..grasp.geometry import CameraIntrinsics
+from ..perception.observation import Observation
+from .transforms import look_at
 
 FloatArray = npt.NDArray[np.float64]
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # flip y and z: OpenGL camera → OpenCV camera

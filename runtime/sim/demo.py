@@ -13,12 +13,12 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from craft_e.runtime.perception.roi import best_box_matches
-from craft_e.runtime.perception.segment import segment
-from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.episode import Outcome, execute_pick
-from craft_e.runtime.sim.oracle import gt_rois, oracle_grasp
-from craft_e.runtime.sim.scene import SceneSpec
+from ..perception.roi import best_box_matches
+from ..perception.segment import segment
+from .env import SimEnv
+from .episode import Outcome, execute_pick
+from .oracle import gt_rois, oracle_grasp
+from .scene import SceneSpec
 
 DEFAULT_DISTRACTORS = ("apple", "spoon", "tuna_fish_can", "soap", "fork")
 

@@ -17,11 +17,11 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.camera import Camera, render
-from craft_e.runtime.sim.gripper import GripperConfig
-from craft_e.runtime.sim.robot import ArmConfig, CR3Robot
-from craft_e.runtime.sim.scene import Scene, SceneSpec, TableLayout, capture, make_scene
+from ..perception.observation import Observation
+from .camera import Camera, render
+from .gripper import GripperConfig
+from .robot import ArmConfig, CR3Robot
+from .scene import Scene, SceneSpec, TableLayout, capture, make_scene
 
 
 @dataclass(frozen=True)

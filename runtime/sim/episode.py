@@ -17,11 +17,11 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.grasp.geometry import TopDownGrasp
-from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.robot import CR3Robot, IKSolution
-from craft_e.runtime.sim.robot_urdf import FINGERTIP_BELOW_TCP
-from craft_e.runtime.sim.scene import Scene
+from ..grasp.geometry import TopDownGrasp
+from .env import SimEnv
+from .robot import CR3Robot, IKSolution
+from .robot_urdf import FINGERTIP_BELOW_TCP
+from .scene import Scene
 
 
 class Outcome(StrEnum):

@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D
-from craft_e.runtime.sim.camera import Camera, render
+from ..grasp.geometry import CameraIntrinsics, Grasp2D
+from .camera import Camera, render
 
 if TYPE_CHECKING:
-    from craft_e.runtime.sim.pipeline import EpisodeResult
+    from .pipeline import EpisodeResult
 
 UInt8Image = npt.NDArray[np.uint8]
 

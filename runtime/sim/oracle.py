@@ -13,10 +13,10 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.grasp.geometry import TopDownGrasp, wrap_half_pi
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.perception.roi import Region, roi_from_mask
-from craft_e.runtime.sim.scene import Scene
+from ..grasp.geometry import TopDownGrasp, wrap_half_pi
+from ..perception.observation import Observation
+from ..perception.roi import Region, roi_from_mask
+from .scene import Scene
 
 FloatArray = npt.NDArray[np.float64]
 

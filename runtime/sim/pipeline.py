@@ -59,17 +59,17 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.encoders.image import ImageEncoder
-from craft_e.runtime.grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
-from craft_e.runtime.grounding.grounder import Grounder, Grounding
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.perception.roi import ROI, Region, box_iou
-from craft_e.runtime.perception.segment import SegmentConfig, segment
-from craft_e.runtime.sim.assets import object_catalog
-from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
-from craft_e.runtime.sim.oracle import gt_rois, oracle_grasp
-from craft_e.runtime.sim.scene import Scene, SceneSpec
+from ..encoders.image import ImageEncoder
+from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
+from ..grounding.grounder import Grounder, Grounding
+from ..perception.observation import Observation
+from ..perception.roi import ROI, Region, box_iou
+from ..perception.segment import SegmentConfig, segment
+from .assets import object_catalog
+from .env import SimEnv
+from .episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
+from .oracle import gt_rois, oracle_grasp
+from .scene import Scene, SceneSpec
 
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
@@ -289,7 +289,7 @@ def finger_check(
 
 def tip_height(pose: TopDownGrasp, pick: PickConfig, table_z: float) -> float:
     """Height of the finger tips at the grasp, as ``execute_pick`` will place them."""
-    from craft_e.runtime.sim.robot_urdf import FINGERTIP_BELOW_TCP
+    from .robot_urdf import FINGERTIP_BELOW_TCP
 
     tcp = max(float(pose.position[2]) - pick.insertion_depth,
               table_z + FINGERTIP_BELOW_TCP + pick.table_clearance)
@@ -318,7 +318,7 @@ def _raw_candidates(
         if body is None:
             return []
         return [GraspCandidate(r, pose) for r, pose in _oracle_rect(scene, obs, body, roi.mask)]
-    from craft_e.runtime.grasp.predict import predict_grasps
+    from ..grasp.predict import predict_grasps
 
     rects = predict_grasps(
         config.grasp, obs.rgb, obs.depth, roi.mask, config.max_grasps,
@@ -420,7 +420,7 @@ def perceive(
 
     ``env`` holds the built scene with the arm at home; nothing here moves it.
     """
-    from craft_e.runtime.encoders.image import crop_box
+    from ..encoders.image import crop_box
 
     scene = env.scene
     obs = obs if obs is not None else env.capture()
@@ -561,7 +561,7 @@ def true_class_probabilities(
     """``p(o | r)`` ``[N, O]`` with each ROI's row one-hot on its true class (see
     ``ChoiceError``); rows of ROIs over no scene body, or whose name is not in the grounder's
     vocabulary, stay as perceived."""
-    from craft_e.schemas.names import normalize_name
+    from ...schemas.names import normalize_name
 
     index = {name: j for j, name in enumerate(grounder.vocabulary)}
     p_true = np.array(perceived, dtype=np.float32, copy=True)

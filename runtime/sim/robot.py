@@ -17,16 +17,16 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.sim.gripper import GripperConfig, ParallelGripper
-from craft_e.runtime.sim.kinematics import SerialChain, load_chain
-from craft_e.runtime.sim.robot_urdf import (
+from .gripper import GripperConfig, ParallelGripper
+from .kinematics import SerialChain, load_chain
+from .robot_urdf import (
     FINGER_JOINTS,
     HAND_JOINT,
     TCP_JOINT,
     TCP_LINK,
     robot_urdf_path,
 )
-from craft_e.runtime.sim.transforms import quat_to_matrix, rpy_to_quat
+from .transforms import quat_to_matrix, rpy_to_quat
 
 FloatArray = npt.NDArray[np.float64]
 Point3 = Sequence[float] | FloatArray

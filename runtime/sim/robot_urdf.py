@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pybullet_data
 
-from craft_e.runtime.sim.assets import shared_path
+from .assets import shared_path
 
 CR3_DIR = "assets/robots/dobot_cr3"
 CR3_URDF = f"{CR3_DIR}/cr3_robot.urdf"

@@ -15,17 +15,17 @@ import numpy as np
 import numpy.typing as npt
 import pybullet as p
 
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.assets import object_asset
-from craft_e.runtime.sim.camera import Camera, render
-from craft_e.runtime.sim.placement import (
+from ..perception.observation import Observation
+from .assets import object_asset
+from .camera import Camera, render
+from .placement import (
     Footprint,
     PlacementConfig,
     PlanarPose,
     Rect,
     sample_layout,
 )
-from craft_e.runtime.sim.transforms import rpy_to_quat
+from .transforms import rpy_to_quat
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -1,6 +1,6 @@
 """Version 1 of the CRAFT-E artifact schemas (records, payloads, bundle manifest, report)."""
 
-from craft_e.schemas.v1.bundle import (
+from .bundle import (
     BUNDLE_FILES,
     BuildInfo,
     BundleReport,
@@ -9,7 +9,7 @@ from craft_e.schemas.v1.bundle import (
     SourceInfo,
     TextEncoderInfo,
 )
-from craft_e.schemas.v1.payloads import (
+from .payloads import (
     ObjectProperties,
     PropertyScore,
     RankedObject,
@@ -17,7 +17,7 @@ from craft_e.schemas.v1.payloads import (
     VerbObjects,
     VerbProperties,
 )
-from craft_e.schemas.v1.records import Record, RecordRequest
+from .records import Record, RecordRequest
 
 SCHEMA_VERSION = 1
 

@@ -14,7 +14,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from craft_e.schemas.v1.records import canonical_json
+from .records import canonical_json
 
 MANIFEST_SCHEMA_ID = "https://craft-e.dev/schemas/v1/manifest.json"
 REPORT_SCHEMA_ID = "https://craft-e.dev/schemas/v1/report.json"
