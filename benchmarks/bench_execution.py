@@ -19,7 +19,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from craft_e.paths import REPO_ROOT
+from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.episode import execute_pick
@@ -65,7 +65,7 @@ def run(labels: Path, hand: str | None, grasp: str, max_pairs: int | None) -> di
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--labels", type=Path, default=REPO_ROOT / "artifacts/labels/sim_dev_labels.csv")
+    parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
     parser.add_argument("--hand", default=None, help="robotiq_2f85 | panda (default: the env's)")
     parser.add_argument("--grasp", default="grconvnet")
     parser.add_argument("--max-pairs", type=int, default=None)

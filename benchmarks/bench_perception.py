@@ -35,7 +35,7 @@ import platform
 import time
 from pathlib import Path
 
-from craft_e.paths import REPO_ROOT
+from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import (
     build_grounders,
     default_encoder,
@@ -59,7 +59,7 @@ from craft_e.runtime.sim.pipeline import (
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--labels", type=Path, default=REPO_ROOT / "artifacts/labels/sim_dev_labels.csv")
+    parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
     parser.add_argument("--scenes", type=int, default=6)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--threads", type=int, default=1)

@@ -25,7 +25,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from craft_e.paths import REPO_ROOT
+from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.methods import build_grounders, load_methods, select_methods
 from craft_e.runtime.evaluation.sim_eval import (
     default_encoder,
@@ -62,7 +62,7 @@ class EpisodeTiming:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--labels", type=Path, default=REPO_ROOT / "artifacts/labels/sim_dev_labels.csv")
+    parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
     parser.add_argument("--episodes", type=int, default=6)
     parser.add_argument("--grasp", default="grconvnet")
     parser.add_argument("--json", type=Path, default=None)

@@ -25,7 +25,7 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
-from ..paths import CACHE_DIR, VOCAB_DIR
+from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR
 from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
 from .cli_diagnose import register as register_diagnose
 from .cli_pack import register as register_pack
@@ -204,7 +204,7 @@ def build(
         config = BuildConfig(
             verbs_file=verbs,
             objects_file=objects,
-            out=out or Path("artifacts/kb") / name,
+            out=out or KB_DIR / name,
             name=name,
             kb_version=kb_version,
             mode=mode,
@@ -516,7 +516,6 @@ def cache_clean(
     provider, model, prompt and subject), and with --verbs every record a replay build of
     those inputs reads. SHA256SUMS stays consistent.
     """
-    from ..paths import KB_DIR
     from .cache import CacheError, RecordCache
     from .cache_clean import (
         ReferencesError,

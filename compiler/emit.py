@@ -13,6 +13,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from ..files import current_umask
 from ..schemas.v1.bundle import (
     BUILD_INFO_FILE,
     BUNDLE_FILES,
@@ -126,12 +127,6 @@ def check_out_path(
         )
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def write_bundle(
     out: Path,
     files: dict[str, bytes],
@@ -150,7 +145,7 @@ def write_bundle(
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
-        os.chmod(staging, 0o777 & ~_umask())
+        os.chmod(staging, 0o777 & ~current_umask())
         for name, data in files.items():
             (staging / name).write_bytes(data)
         (staging / MANIFEST_FILE).write_bytes(model_json(manifest))

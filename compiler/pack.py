@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from ..files import current_umask
 from ..runtime.kb.package import (
     PackageError,
     PackageHeader,
@@ -250,7 +251,7 @@ def pack_bundle(
             handle.write(blob)
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
+        os.chmod(tmp, 0o666 & ~current_umask())
         try:
             verified = verify_package(tmp, [public])
         except PackageError as exc:  # pragma: no cover - would be a packer bug
@@ -279,8 +280,3 @@ def _check_out_file(out: Path) -> None:
     if not out.is_file():
         raise PackError(f"{out}: exists and is not a regular file (nothing was written)")
 
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -1,5 +1,8 @@
 """Prompt templates (``prompts/<id>.<version>.md``) and their rendering into chat messages.
 
+The templates are package data of ``craft_e.prompts`` (the design card's top-level ``prompts/``),
+found through ``importlib.resources``: an installed wheel carries them, no checkout needed.
+
 A template has a ``## system`` and a ``## user`` section and ``str.format`` placeholders. The
 prompt id and version come from the file name, and ``<id>@<version>`` is part of every record
 key: editing a template means a new version file, which addresses new records.
@@ -11,12 +14,12 @@ import hashlib
 import re
 from dataclasses import dataclass
 from functools import cache
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel
 
-from ..paths import PROMPTS_DIR
 from ..schemas.v1.payloads import (
     ObjectProperties,
     PropertyObjects,
@@ -25,6 +28,9 @@ from ..schemas.v1.payloads import (
     VerbPropertiesV2,
 )
 from ..schemas.v1.records import Message
+
+#: The shipped templates (a plain folder: the package is installed unpacked, never zipped).
+PROMPTS_DIR = Path(str(resources.files("craft_e.prompts")))
 
 PAYLOADS: dict[str, type[BaseModel]] = {
     "verb_properties": VerbProperties,

@@ -1,8 +1,21 @@
-"""Where the project's own files and the shared reference data live.
+"""Where the project's data lives, from configuration — never from the location of the code.
 
-The repository keeps prompts/ and artifacts/ beside the code (the design card's layout), so the
-installed package finds them relative to the source tree; ``CRAFT_SHARED`` points at the read-only
-``shared/`` folder (default: ``../shared`` next to the repository).
+The installed package carries everything it *is* (prompt templates, JSON Schemas, the sim
+catalogue) as package data; everything it *works on* is found through configuration, so a wheel
+installed outside a checkout behaves like the checkout:
+
+* ``$CRAFT_ARTIFACTS`` — the artifacts folder (record cache, vocabularies, labels, bundles);
+  default ``artifacts`` relative to the current directory, which is the checkout's own folder
+  when a command runs from the repository root (as every script and README command does).
+  ``KB_DIR``, ``VOCAB_DIR`` and ``LABELS_DIR`` are its ``kb/``, ``vocab/`` and ``labels/``.
+* ``$CRAFT_CACHE`` — the record cache (``craftc --cache`` reads the same variable); default
+  ``<artifacts>/cache``.
+* ``$CRAFT_SHARED`` — the read-only reference data (models, images, ConceptNet); default
+  ``../shared`` relative to the current directory (beside the checkout, run from its root).
+
+Every command that reads one of these also takes an explicit option (``--cache``, ``--kb``,
+``--objects``, ``--labels``, ...). The variables are read once, when this module is imported: set
+them before starting a process.
 """
 
 from __future__ import annotations
@@ -10,15 +23,21 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-PROMPTS_DIR = REPO_ROOT / "prompts"
-ARTIFACTS_DIR = REPO_ROOT / "artifacts"
-CACHE_DIR = ARTIFACTS_DIR / "cache"
+
+def _env_path(name: str, default: Path) -> Path:
+    value = os.environ.get(name)
+    return Path(value) if value else default
+
+
+ARTIFACTS_DIR = _env_path("CRAFT_ARTIFACTS", Path("artifacts"))
+CACHE_DIR = _env_path("CRAFT_CACHE", ARTIFACTS_DIR / "cache")
 KB_DIR = ARTIFACTS_DIR / "kb"
 VOCAB_DIR = ARTIFACTS_DIR / "vocab"
+LABELS_DIR = ARTIFACTS_DIR / "labels"
+SIM_DEV_LABELS = LABELS_DIR / "sim_dev_labels.csv"
 
 
 def shared_dir() -> Path:
-    """The shared reference folder: ``$CRAFT_SHARED`` or ``<repo>/../shared``."""
+    """The shared reference folder: ``$CRAFT_SHARED`` or ``../shared`` (read at each call)."""
     env = os.environ.get("CRAFT_SHARED")
-    return Path(env).resolve() if env else (REPO_ROOT.parent / "shared").resolve()
+    return Path(env).resolve() if env else (Path.cwd().parent / "shared").resolve()

@@ -9,6 +9,7 @@ copy of its cache, whose embeddings are already computed.
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,6 +21,11 @@ import pytest
 if TYPE_CHECKING:
     from craft_e.compiler.build import BuildConfig
     from craft_e.compiler.sources.llm import LLMSource
+
+# The package finds artifacts/ through configuration (craft_e.paths: $CRAFT_ARTIFACTS, default
+# ./artifacts); the suite pins it to this checkout's folder so pytest may run from any directory.
+# Set before any craft_e module is imported (conftest is imported first).
+os.environ.setdefault("CRAFT_ARTIFACTS", str(Path(__file__).resolve().parents[1] / "artifacts"))
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 KB_SMALL = FIXTURES / "kb_small"

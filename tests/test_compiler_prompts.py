@@ -15,9 +15,14 @@ from conftest import FIXTURES
 
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.llm_knowledge import direct_call, object_call, verb_call
-from craft_e.compiler.prompts import PromptError, format_list, load_prompt, property_set_id
+from craft_e.compiler.prompts import (
+    PROMPTS_DIR,
+    PromptError,
+    format_list,
+    load_prompt,
+    property_set_id,
+)
 from craft_e.compiler.sources.llm import LLMSource, PromptCall
-from craft_e.paths import PROMPTS_DIR
 
 GOLDEN = {
     "verb_properties.v1.cut": verb_call("cut", version="v1"),

@@ -17,7 +17,6 @@ import stat
 import subprocess
 import tempfile
 import threading
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -224,9 +223,10 @@ def test_a_fifo_package_is_refused_not_waited_on(tmp_path: Path, keys: tuple[Pat
     os.mkfifo(fifo)
     exc = _returns_within(10, lambda: verify_package(fifo, [keys[1]]))
     assert isinstance(exc, PackageError) and "not a regular file" in str(exc)
-    start = time.monotonic()
-    r = craft("install", fifo, "--into", tmp_path / "into", "--trusted-key", keys[1])
-    assert r.exit_code == 2 and time.monotonic() - start < 10  # not a file: bad input
+    box: list[Any] = []
+    assert _returns_within(10, lambda: box.append(
+        craft("install", fifo, "--into", tmp_path / "into", "--trusted-key", keys[1]))) is None
+    assert box[0].exit_code == 2  # not a file: bad input
 
 
 def test_a_bundle_file_linked_to_dev_zero_is_refused_before_reading(tmp_path: Path) -> None:
@@ -313,12 +313,16 @@ def test_downgrade_needs_allow_downgrade(tmp_path: Path, packages: list[Path], k
 
 
 def test_a_huge_name_is_refused_fast_and_not_echoed() -> None:
-    huge = "a" * 10_000_000
+    """Refused on its length alone: a string that fails on any other work proves no pass ran."""
+
+    class NoWork(str):
+        def __getattribute__(self, attr: str) -> Any:
+            raise AssertionError(f"normalize touched the huge name ({attr}) before refusing it")
+
+    huge = NoWork("a" * 10_000_000)
     for normalize in (normalize_name, normalize_verb):
-        start = time.perf_counter()
         with pytest.raises(ValueError, match="longer than 100 characters") as info:
             normalize(huge)
-        assert time.perf_counter() - start < 0.5
         assert len(str(info.value)) < 300
 
 

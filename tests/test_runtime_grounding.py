@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import socket
-import time
 from typing import Any
 
 import numpy as np
@@ -141,22 +140,6 @@ def test_bundle_with_other_text_encoder_is_refused(runtime_kbs: RuntimeKBs) -> N
     with pytest.raises(BundleError, match=r"manifest\.json.*clip-vit-b32"):
         load_bundle(runtime_kbs.other_encoder)
     assert load_bundle(runtime_kbs.other_encoder, check_encoder=False).manifest.text_encoder.id == "clip-vit-b32"
-
-
-def test_ground_is_fast_with_precomputed_embeddings(runtime_kbs: RuntimeKBs) -> None:
-    """10 ROIs: well under a millisecond normally; the bound here is loose for loaded CI hosts."""
-    kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb)
-    rng = np.random.default_rng(0)
-    rois = [ROI((0, 0, 1, 1), [float(s)], image_embedding=rng.normal(size=384).astype(np.float32))
-            for s in rng.uniform(0.1, 1, 10)]
-    g.ground("cut", rois)
-    times = []
-    for _ in range(200):
-        t = time.perf_counter()
-        g.ground("cut", rois)
-        times.append(time.perf_counter() - t)
-    assert float(np.median(times)) < 5e-3
 
 
 def test_full_grounding_run_opens_no_socket(runtime_kbs: RuntimeKBs, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -122,6 +122,30 @@ def test_the_scanner_sees_lazy_relative_and_guarded_imports() -> None:
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
+def test_the_scanner_resolves_relative_imports_to_modules() -> None:
+    """Inside the package imports are relative (scripts/relative_imports.py): each form must
+    resolve to the module it names, or the no-compiler and no-cycle checks would see nothing."""
+    known = {"craft_e.paths", "craft_e.runtime.kb", "craft_e.runtime.kb.bundle", "craft_e.runtime.grounding",
+             "craft_e.runtime.grounding.energies", "craft_e.compiler", "craft_e.compiler.build"}
+    source = (
+        "from ..kb.bundle import load_bundle\n"  # a sibling package's module
+        "from . import energies\n"  # a module of this package, named in the import list
+        "from ... import paths\n"  # a top-level module
+        "def f():\n    from ...compiler.build import build\n"  # lazy, and forbidden
+    )
+    names = imported("craft_e.runtime.grounding.grounder", source, known)
+    assert {"craft_e.runtime.kb.bundle", "craft_e.runtime.grounding.energies", "craft_e.paths",
+            "craft_e.compiler.build"} <= names
+    assert forbidden(names) == ["craft_e.compiler.build"]
+    # in a package's __init__, one dot is the package itself
+    assert "craft_e.runtime.kb.bundle" in imported("craft_e.runtime.kb", "from .bundle import x\n", known)
+    # a ring written with relative imports is still a ring
+    graph = {m: {i for i in imported(m, src, known) if i in known and i != m} for m, src in (
+        ("craft_e.runtime.kb.bundle", "from ..grounding import energies\n"),
+        ("craft_e.runtime.grounding.energies", "from ..kb.bundle import Bundle\n"))}
+    assert cycles(graph) == [["craft_e.runtime.grounding.energies", "craft_e.runtime.kb.bundle"]]
+
+
 def test_runtime_source_imports_no_compiler_httpx_rdflib() -> None:
     mods = modules()
     runtime = {m: p for m, p in mods.items() if m.startswith("craft_e.runtime")}

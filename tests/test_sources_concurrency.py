@@ -106,15 +106,14 @@ def test_cli_timeout_and_concurrency_reach_the_source(
 
     monkeypatch.setattr("craft_e.compiler.build.LLMSource", one_attempt)
     with FakeServer(responder=lambda r: Reply(200, b"{}", delay_s=1.0)) as server:
-        started = time.monotonic()
         result = CliRunner().invoke(
             app, _build_args(tmp_path, server.url, "--timeout", "0.3", "--concurrency", "2"),
             env={"COLUMNS": "2000", "OPENAI_API_KEY": ""},
         )
-        elapsed = time.monotonic() - started
     assert result.exit_code == 3, result.output
+    # the client gave up at --timeout: had it waited the server's 1 s, it would have read "{}"
+    # and failed on the answer's shape, not with "timed out" (no wall-clock bound needed)
     assert "timed out" in result.output
-    assert elapsed < 0.95  # the client gave up at --timeout, not when the server answered
     assert made and made[0]["max_concurrency"] == 2
     assert not list(RecordCache(tmp_path / "cache").iter_records(LLM_SOURCE))
 

@@ -17,7 +17,6 @@ it read, kept and dropped: ConceptNet's coverage of tool use is thin, and the re
 from __future__ import annotations
 
 import gzip
-import hashlib
 import json
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -28,6 +27,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 import httpx
 
+from ...files import sha256_file
 from ...paths import shared_dir
 from ...schemas.names import normalize_name
 from ...schemas.v1.bundle import SourceInfo
@@ -136,15 +136,6 @@ def scaled_weight(weight: float, scale: float = DEFAULT_WEIGHT_SCALE) -> float:
 
 # --------------------------------------------------------------------------------------------
 # local files
-
-
-def file_sha256(path: Path) -> str:
-    """sha256 of a file's bytes: how a local dump is identified in the manifest."""
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def _open_text(path: Path) -> TextIO:
@@ -642,7 +633,7 @@ def _from_files(
         progress("conceptnet", len(paths))
     stats["facts kept for mapping"] += len(kept)
     map_facts(draft, kept)
-    ids = [f"{p.name}@sha256:{file_sha256(p)}" for p in paths]
+    ids = [f"{p.name}@sha256:{sha256_file(p)}" for p in paths]
     return SourceInfo(kind="conceptnet", provider=provider, model=model, prompts=ids,
                       records=stats["lines read"])
 

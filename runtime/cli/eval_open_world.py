@@ -7,9 +7,11 @@ from typing import Annotated
 
 import typer
 
+from ...paths import KB_DIR
+
 
 def eval_open_world(
-    kb: Annotated[Path, typer.Option(help="Bundle to evaluate.")] = Path("artifacts/kb/craft-e-default"),
+    kb: Annotated[Path, typer.Option(help="Bundle to evaluate.")] = KB_DIR / "craft-e-default",
     labels: Annotated[list[str] | None, typer.Option(
         help="zhu | sim-dev | labels .json | verb,object .csv (repeatable; default: zhu and sim-dev).")] = None,
     energy_form: Annotated[str | None, typer.Option(help="E_aff form (default: the bundle's).")] = None,

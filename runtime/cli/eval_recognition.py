@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from .common import err, note
-from .eval_sim import ProgressBar
+from .episodes import run_with_progress
 
 
 def eval_recognition(
@@ -20,12 +18,8 @@ def eval_recognition(
     markdown: Annotated[Path | None, typer.Option(help="Write the Markdown table.")] = None,
 ) -> None:
     """Recognition top-1/top-5 of the 74 rendered sim assets under each perception setting."""
-    from ..evaluation.common import emit_report
     from ..evaluation.recognition import evaluate_recognition
 
-    start = time.perf_counter()
-    with ProgressBar() as bar:
-        report = evaluate_recognition(views, seed, threads=threads,
-                                      progress=lambda d, t: bar(d, t, {"id": "rendering"}))
-    err.print(f"{report.config['images']} images in {time.perf_counter() - start:.0f} s", highlight=False)
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
+    run_with_progress(lambda bar: evaluate_recognition(
+        views, seed, threads=threads, progress=lambda d, t: bar(d, t, {"id": "rendering"})),
+        "images", "images", json_out, markdown)

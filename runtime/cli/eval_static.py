@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from .common import AffModeOpt, EnergyFormOpt, err, fail, grounding_settings
-
-DEFAULT_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
+from . import episodes as ep
+from .common import AffModeOpt, EnergyFormOpt, fail, grounding_settings
 
 
 def eval_static(
@@ -18,50 +16,39 @@ def eval_static(
                                                      "(default: artifacts/labels/sim_dev_labels.csv).")] = None,
     grasp: Annotated[list[str] | None, typer.Option(help="Grasp backend(s) of the Full Pipeline rows, "
                                                          "repeatable: grconvnet | ggcnn | ggcnn2 | antipodal.")] = None,
-    layouts: Annotated[int, typer.Option(min=1, help="Layouts (scenes) per verb–target pair.")] = 3,
-    methods: Annotated[list[str] | None, typer.Option(help="Methods, comma-separated or repeated "
-                                                            "(default: CRAFT-E, CRAFT, direct-LLM, alignment-only).")] = None,
-    kb: Annotated[Path | None, typer.Option(help="CRAFT-E bundle (default <kb-dir>/craft-e-default).")] = None,
-    kb_dir: Annotated[Path | None, typer.Option(help="Folder of the bundles.")] = None,
+    layouts: ep.LayoutsOpt = 3,
+    methods: ep.MethodsOpt = None,
+    kb: ep.SceneKbOpt = None,
+    kb_dir: ep.SceneKbDirOpt = None,
     noise: Annotated[list[str] | None, typer.Option(help="Extra noise level, repeatable: grasp=SIGMA and/or "
                                                          "box=FRACTION, e.g. --noise grasp=0.1,box=0.2.")] = None,
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write results (with every episode) as JSON.")] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown table.")] = None,
-    max_pairs: Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")] = None,
+    json_out: ep.EpisodesJsonOpt = None,
+    markdown: ep.TablesOpt = None,
+    max_pairs: ep.MaxPairsOpt = None,
     seed: Annotated[int, typer.Option(help="Seed of target/distractor/layout sampling and noise.")] = 0,
-    threads: Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")] = 1,
+    threads: ep.SceneThreadsOpt = 1,
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",
-    jobs: Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical "
-                                                  "to --jobs 1).")] = 1,
+    jobs: ep.JobsOpt = 1,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
-    from ...paths import KB_DIR, REPO_ROOT
-    from ..evaluation.common import emit_report
-    from ..evaluation.methods import select_methods
+    from ...paths import SIM_DEV_LABELS
     from ..evaluation.sim_eval import LabelsError
     from ..evaluation.static_eval import evaluate_static, parse_noise
     from ..sim.assets import SharedAssetsMissingError
     from ..sim.placement import PlacementError
-    from .eval_sim import ProgressBar, split_names
 
-    labels_path = labels or REPO_ROOT / DEFAULT_LABELS
+    labels_path = labels or SIM_DEV_LABELS
     try:
         levels = [parse_noise(n) for n in noise or []]
-        specs = select_methods(split_names(methods), kb, kb_dir or KB_DIR)
     except ValueError as exc:
         fail(str(exc))
+    specs = ep.scene_methods(methods, kb, kb_dir)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode)
-    start = time.perf_counter()
-    try:
-        with ProgressBar() as bar:
-            report = evaluate_static(labels_path, backends=split_names(grasp) or ["grconvnet"],
-                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
-                                     noise=levels, threads=threads,
-                                     settings=settings, progress=bar, jobs=jobs)
-    except (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError,
-            ValueError, RuntimeError) as exc:
-        fail(str(exc))
-    err.print(f"{report.config['episodes']} scenes in {time.perf_counter() - start:.0f} s", highlight=False)
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
-                lambda msg: err.print(msg, highlight=False))
+    ep.run_with_progress(
+        lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
+                                    layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
+                                    noise=levels, threads=threads, settings=settings, progress=bar,
+                                    jobs=jobs),
+        "episodes", "scenes", json_out, markdown,
+        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, ValueError, RuntimeError))

@@ -43,14 +43,10 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
 def read_rois_file(path: Path) -> list[BoxSpec]:
     """ROIs JSON: a list (or ``{"rois": [...]}``) of ``{"box": [x, y, w, h], "grasp_scores":
     [...] (optional), "label": "..." (optional)}``."""
+    from ...files import read_json
     from ..perception.roi import BoxSpec
 
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ValueError(f"{path}: ROIs file not found") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    data = read_json(path, "ROIs file", ValueError)
     items = data.get("rois") if isinstance(data, dict) else data
     if not isinstance(items, list) or not items:
         raise ValueError(f'{path}: expected a non-empty list of ROIs or {{"rois": [...]}}')

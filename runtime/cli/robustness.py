@@ -21,21 +21,20 @@ from .common import (
     TemperatureOpt,
     ThreadsOpt,
     fail,
-    grounding_settings,
     note,
-    read_names,
 )
+from .imagenet_inputs import CraftKbOpt, EpisodesOpt, LabelsOpt, SeedOpt, protocol_inputs
 
 
 def robustness_imagenet(
-    labels: Annotated[Path, typer.Option(help='Labels JSON {"verb": ["object", ...]}.')],
-    kb: Annotated[Path | None, typer.Option(help="CRAFT-E bundle (default artifacts/kb/craft-e-default).")] = None,
+    labels: LabelsOpt,
+    kb: CraftKbOpt = None,
     kb_dir: KbDirOpt = None,
     levels: Annotated[list[str] | None, typer.Option(
         "--levels", help="KIND=L1,L2,... (repeatable; kinds: gaussian sigma, blur radius px, crop fraction cut "
                          "away). Default: gaussian=0,8,16,32,64 blur=0,1,2,4,8 crop=0,0.25,0.5,0.75.")] = None,
-    episodes: Annotated[int, typer.Option(min=1, help="Episodes per verb and setting.")] = 100,
-    seed: Annotated[int, typer.Option(help="Seed of the episode sampler.")] = 0,
+    episodes: EpisodesOpt = 100,
+    seed: SeedOpt = 0,
     noise_seed: Annotated[int, typer.Option(help="First seed of the perturbations.")] = 0,
     noise_seeds: Annotated[int, typer.Option(min=1, help="Noise draws per level (seeds noise-seed, +1, ...), averaged.")] = 1,
     json_out: JsonOpt = None,
@@ -49,33 +48,22 @@ def robustness_imagenet(
     energy_form: EnergyFormOpt = None,
 ) -> None:
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
-    from ...paths import KB_DIR
-    from ..encoders.conse import ENCODER_CACHE_DIR
     from ..evaluation.common import emit_report
     from ..evaluation.imagenet import LabelsError
-    from ..evaluation.methods import default_methods
-    from ..evaluation.robustness import (
-        DEFAULT_LEVELS,
-        evaluate_robustness,
-        parse_levels,
-    )
+    from ..evaluation.robustness import DEFAULT_LEVELS, evaluate_robustness, parse_levels
 
-    settings = grounding_settings(temperature=temperature, aff_mode=aff_mode, energy_form=energy_form)
+    given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form)
     try:
         chosen = parse_levels(levels) if levels else DEFAULT_LEVELS
     except ValueError as exc:
         fail(str(exc))
-    pool = read_names(classes, "classes file") if classes is not None else None
     try:
-        report = evaluate_robustness(labels, levels=chosen, methods=default_methods(kb, kb_dir or KB_DIR),
-                                     episodes=episodes, seed=seed, noise_seeds=range(noise_seed, noise_seed + noise_seeds), pool=pool,
-                                     cache_dir=None if no_cache else ENCODER_CACHE_DIR, threads=threads,
-                                     settings=settings)
+        report = evaluate_robustness(labels, levels=chosen, methods=given.methods, episodes=episodes, seed=seed,
+                                     noise_seeds=range(noise_seed, noise_seed + noise_seeds), pool=given.pool,
+                                     cache_dir=given.cache_dir, threads=threads, settings=given.settings)
     except (LabelsError, FileNotFoundError, ValueError) as exc:
         fail(str(exc))
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
-                note)
+    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
     if plot is not None:
         report.plot(plot)
         note(f"wrote {plot}")
-

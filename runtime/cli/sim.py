@@ -8,8 +8,6 @@ from typing import Annotated
 
 import typer
 
-DEFAULT_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
-
 
 def demo(
     verb: Annotated[str, typer.Option(help="The request, e.g. cut.")],
@@ -28,7 +26,7 @@ def demo(
                                                   "pre-grasp.")] = True,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
-    from ...paths import KB_DIR, REPO_ROOT
+    from ...paths import KB_DIR, SIM_DEV_LABELS
     from ..evaluation.methods import MethodSpec, build_grounders
     from ..evaluation.sim_eval import (
         LabelsError,
@@ -52,7 +50,7 @@ def demo(
         env_config, pick = sim_configs(gripper, wrist_look)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
                                 pick=pick)
-        all_labels = load_sim_labels(labels or REPO_ROOT / DEFAULT_LABELS)
+        all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:
         fail(str(exc))
     name = normalize_verb_name(verb)

@@ -31,8 +31,9 @@ import numpy.typing as npt
 import torch
 from torch import nn
 
+from ...files import sha256_file
 from .image import FloatArray, UInt8Image, resize_center_crop
-from .text import EncoderError, TextEncoderSpec, sha256_file
+from .text import EncoderError, TextEncoderSpec
 
 CLIP_ID = "clip-vit-b32"
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)

@@ -20,7 +20,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .text import EncoderError, sha256_file
+from ...files import sha256_file
+from .text import EncoderError
 
 EFFICIENTNET_LITE0_ID = "efficientnet-lite0"
 EFFICIENTNET_LITE0_SHA256 = "579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db"

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ...files import sha256_file
+
 FloatArray = npt.NDArray[np.float32]
 BoolArray = npt.NDArray[np.bool_]
 
@@ -60,10 +62,6 @@ def ndcg(energy: npt.NDArray[Any], relevant: BoolArray) -> FloatArray:
 # image embeddings, computed once per image and encoder
 
 
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 class ImageEmbeddingCache:
     """Embeddings per (encoder id, image file sha256): in memory, optionally on disk.
 
@@ -90,7 +88,7 @@ class ImageEmbeddingCache:
         self, paths: Sequence[Path], embed: Callable[[list[Path]], FloatArray]
     ) -> FloatArray:
         """``[N, d]`` embeddings of ``paths``; ``embed`` is called once for the missing ones."""
-        keys = [file_sha256(p) for p in paths]
+        keys = [sha256_file(p) for p in paths]
         unique = list(dict.fromkeys(keys))
         todo = [k for k in unique if k not in self._mem]
         if todo:

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import difflib
-import json
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -44,6 +43,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ...files import read_json, sha256_file
 from ...paths import VOCAB_DIR, shared_dir
 from ..grounding.energies import object_hypotheses
 from ..grounding.grounder import normalize_verb_name
@@ -52,7 +52,6 @@ from .common import (
     ImageEmbeddingCache,
     MethodResult,
     SkippedMethod,
-    file_sha256,
     markdown_table,
     ndcg,
     reciprocal_rank,
@@ -131,12 +130,7 @@ def load_dataset(root: Path | None = None) -> ImageNetData:
 def load_labels(path: Path, classes: Sequence[str]) -> dict[str, list[str]]:
     """``{"verb": ["object", ...]}`` with names normalized; unknown objects are an error that
     lists close matches (a typo would silently turn a positive into a negative)."""
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise LabelsError(f"{path}: labels file not found") from None
-    except json.JSONDecodeError as exc:
-        raise LabelsError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    raw = read_json(path, "labels file", LabelsError)
     if not isinstance(raw, dict):
         raise LabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
     known = set(classes)
@@ -338,7 +332,7 @@ def evaluate_imagenet(
     if sets:
         results = reference_rows(sets) + results
     config = {
-        "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "episodes": episodes,
+        "labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "episodes": episodes,
         "seed": seed, "verbs": len(labels), "candidates": CANDIDATES, "classes": len(class_ids),
         "images": len(image_ids), "vocabulary_size": len(vocabulary), "image_encoder": encoder_id,
         "temperature": settings.temperature, "aff_mode": settings.aff_mode,

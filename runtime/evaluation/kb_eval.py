@@ -31,7 +31,6 @@ crc32(verb))``.
 
 from __future__ import annotations
 
-import json
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -41,13 +40,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ...paths import KB_DIR, VOCAB_DIR, shared_dir
+from ...files import read_json, sha256_file
+from ...paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
 from ..grounding.energies import ENERGY_FORMS, EnergyForm
 from ..grounding.grounder import normalize_verb_name
 from .common import (
     MethodResult,
     SkippedMethod,
-    file_sha256,
     markdown_table,
 )
 from .zhu import average_precision, read_zhu_matrix
@@ -59,7 +58,6 @@ CANDIDATES = 5
 METRICS = ("ap", "auc", "top1")
 METRIC_LABELS = {"ap": "AP", "auc": "AUC", "top1": "top-1"}
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "direct-llm", KB_DIR / "conceptnet"]
-SIM_DEV_LABELS = Path("artifacts/labels/sim_dev_labels.csv")
 BUILTIN_LABELS = ("zhu", "sim-dev")
 
 
@@ -100,7 +98,7 @@ def _from_names(name: str, source: Path, objects: Sequence[str], pairs: dict[str
         positives[normalize_verb_name(verb)] = mask
     if not positives:
         raise KBLabelsError(f"{source}: no verbs")
-    return LabelSet(name, str(source), objs, positives, file_sha256(source))
+    return LabelSet(name, str(source), objs, positives, sha256_file(source))
 
 
 def zhu_labels(path: Path | None = None) -> LabelSet:
@@ -110,7 +108,7 @@ def zhu_labels(path: Path | None = None) -> LabelSet:
         raise FileNotFoundError(f"{src}: Zhu matrix not found (set CRAFT_SHARED)")
     m = read_zhu_matrix(src)
     shown = "$CRAFT_SHARED/data/affordance_dev/zhu2014_affordance_matrix.csv" if path is None else str(src)
-    return LabelSet("zhu", shown, list(m.objects), dict(m.labels), file_sha256(src))
+    return LabelSet("zhu", shown, list(m.objects), dict(m.labels), sha256_file(src))
 
 
 def sim_labels(path: Path, name: str = "sim-dev") -> LabelSet:
@@ -131,12 +129,7 @@ def sim_labels(path: Path, name: str = "sim-dev") -> LabelSet:
 
 def json_labels(path: Path, objects: Sequence[str] | None = None) -> LabelSet:
     """``{"verb": [...]}``; candidates: ``"_objects"`` in the file, ``objects``, or ImageNet's."""
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise KBLabelsError(f"{path}: labels file not found") from None
-    except json.JSONDecodeError as exc:
-        raise KBLabelsError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    raw = read_json(path, "labels file", KBLabelsError)
     if not isinstance(raw, dict):
         raise KBLabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
     pairs: dict[str, list[str]] = {}

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...files import sha256_file
 from ..grounding.grounder import normalize_verb_name
 from ..grounding.settings import GroundingSettings
 from ..sim.assets import object_asset, object_catalog
@@ -43,7 +44,6 @@ from ..sim.scene import SceneSpec
 from .common import (
     MethodResult,
     SkippedMethod,
-    file_sha256,
     markdown_table,
 )
 from .imagenet import LabelsError
@@ -533,7 +533,7 @@ def evaluate_sim(
                              + ", ".join(open_vocab))
         results.append(row)
     config_out = {
-        "labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "seed": seed,
+        "labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
         "layouts": layouts, "max_pairs": max_pairs, "pairs": len({(s.verb, s.object) for s in specs}),
         "episodes": len(specs), "verbs": len({s.verb for s in specs}), "distractors": DISTRACTORS,
         "pipeline": cfg.to_dict(), "gripper": env_cfg.gripper.hand, "wrist_look": cfg.pick.wrist.enabled,

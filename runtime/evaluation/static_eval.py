@@ -41,13 +41,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, wrap_half_pi
+from ...files import sha256_file
+from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect
 from ..grounding.settings import GroundingSettings
 from ..perception.roi import ROI
 from ..sim.env import EnvConfig
 from ..sim.oracle import OracleConfig, rim_grasps, top_surface_points
 from ..sim.scene import Scene
-from .common import MethodResult, SkippedMethod, file_sha256
+from .common import MethodResult, SkippedMethod
 from .methods import MethodSpec, build_grounders, load_methods, select_methods
 from .sim_eval import (
     EpisodeSpec,
@@ -90,9 +91,7 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
 
     ``width_m`` is the object's section, not the opening.
     """
-    from ..sim.oracle import (
-        cross_section,  # the oracle's own rule, shared on purpose
-    )
+    from ..sim.oracle import grasp_at  # the oracle's own rule, shared on purpose
 
     cfg = config or GTGraspConfig()
     o = cfg.oracle
@@ -116,19 +115,11 @@ def gt_grasp_poses(scene: Scene, body: int, config: GTGraspConfig | None = None)
             closing = np.array([math.cos(yaw), math.sin(yaw)])
             along_axis = np.array([-closing[1], closing[0]])
             along = (xy - centroid) @ along_axis
-            across = (xy - centroid) @ closing
             offsets = np.arange(0.0, float(np.abs(along).max()), o.slide_step)
             for offset in sorted(np.concatenate([offsets, -offsets[1:]]).tolist(), key=abs):
-                section = cross_section(along, across, float(offset), o, parallel)
-                if section is None:
-                    continue
-                low, high = section
-                center = centroid + offset * along_axis + (low + high) / 2 * closing
-                near = np.linalg.norm(xy - center, axis=1) <= o.strip_half_width
-                strip = np.abs(along - offset) <= o.strip_half_width
-                top = float(points[near if np.any(near) else strip, 2].max())
-                poses.append(TopDownGrasp(np.array([center[0], center[1], top]), wrap_half_pi(yaw),
-                                          high - low + o.ray_spacing))
+                grasp = grasp_at(points, centroid, along_axis, closing, yaw, float(offset), o, parallel)
+                if grasp is not None:
+                    poses.append(grasp)
         if poses:
             return poses
     return rim_grasps(points, o, scene.layout.table_z)  # too wide everywhere: by the rim, if any
@@ -486,7 +477,7 @@ def evaluate_static(
                              "detect": sum(o["detect"] for o in outcomes) / n,
                              "grasp": sum(c["target_grasp"] for c in cells) / n},
                     settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma}))
-    config = {"labels": str(labels_path), "labels_sha256": file_sha256(labels_path), "seed": seed,
+    config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
               "noise": [lvl.label for lvl in levels], "image_encoder": enc.id, "detect_iou": DETECT_IOU,

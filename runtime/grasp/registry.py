@@ -8,13 +8,13 @@ checkpoint would give plausible-looking but meaningless grasps.
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from safetensors.torch import load_file
 
+from ...files import sha256_file
 from ...paths import shared_dir
 from .base import GraspNet
 from .ggcnn import GGCNN, GGCNN2
@@ -95,14 +95,6 @@ def get_spec(name: str) -> GraspModelSpec:
 def models_dir() -> Path:
     """``<shared>/models/grasp`` (resolved at call time, so ``CRAFT_SHARED`` can change)."""
     return shared_dir() / "models" / "grasp"
-
-
-def sha256_file(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def verified_weights_path(name: str, root: Path | None = None) -> Path:

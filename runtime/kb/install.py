@@ -42,6 +42,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ...files import fsync_dir
 from ...schemas.v1.bundle import Manifest
 from .package import (
     DEFAULT_LIMITS,
@@ -99,15 +100,6 @@ def version_id(manifest: Manifest) -> str:
     return f"{manifest.kb_name}-{manifest.kb_version}-{manifest.content_sha256[:12]}"
 
 
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 @contextlib.contextmanager
 def _locked(into: Path) -> Iterator[None]:
     """Hold ``into/.lock`` exclusively; a second installer fails fast instead of interleaving.
@@ -159,7 +151,7 @@ def _point(into: Path, name: str, version: str) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(into)
+    fsync_dir(into)
 
 
 def _verified_folder(folder: Path) -> Manifest | None:
@@ -200,7 +192,7 @@ def _finish_rollback(into: Path) -> None:
     if old is not None and _link_target(into, CURRENT) != old:
         _point(into, PREVIOUS, old)
     journal.unlink()
-    _fsync_dir(into)
+    fsync_dir(into)
 
 
 def _semver(text: str) -> tuple[int, ...]:
@@ -324,7 +316,7 @@ def rollback(into: Path | str) -> InstallResult:
         if cur is not None:
             _point(into, PREVIOUS, cur)
             (into / ROLLBACK_JOURNAL).unlink()
-            _fsync_dir(into)
+            fsync_dir(into)
         return InstallResult(prev, folder, cur, True)
 
 

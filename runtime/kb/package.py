@@ -53,6 +53,7 @@ from typing import IO, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from ...files import current_umask, fsync_dir
 from ...schemas.v1.bundle import (
     BUILD_INFO_FILE,
     BUNDLE_FILES,
@@ -664,21 +665,6 @@ def _destination_error(target: Path, exc: OSError) -> DestinationError:
     )
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 def unpack_package(
     path: Path | str,
     trusted_keys: Sequence[TrustedKey] | None,
@@ -699,7 +685,7 @@ def unpack_package(
     path, dest = Path(path), Path(dest)
     trusted = _trusted_table(trusted_keys)
     if mode == -1:
-        mode = 0o777 & ~_umask()
+        mode = 0o777 & ~current_umask()
     if dest.is_symlink() or (dest.exists() and (not dest.is_dir() or any(dest.iterdir()))):
         raise _fail(dest, "already exists and is not an empty folder", "choose a new destination")
     with _open_package(path) as (handle, size):
@@ -725,9 +711,9 @@ def unpack_package(
                 raise
             except BundleError as exc:
                 raise _fail(path, str(exc).replace(str(staging), "<unpacked>"), _REPACK) from None
-            _fsync_dir(staging)
+            fsync_dir(staging)
             os.replace(staging, dest)
-            _fsync_dir(dest.parent)
+            fsync_dir(dest.parent)
         except BaseException:
             shutil.rmtree(staging, ignore_errors=True)
             raise

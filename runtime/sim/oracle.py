@@ -97,22 +97,14 @@ def oracle_grasp(
     _, _, vt = np.linalg.svd(xy - centroid, full_matrices=False)
     long_axis, narrow_axis = vt[0], vt[1]
     along = (xy - centroid) @ long_axis  # [n]
-    across = (xy - centroid) @ narrow_axis  # [n]
     reach = float(np.abs(along).max())
     offsets = np.arange(0.0, reach, cfg.slide_step)
     candidates = sorted(np.concatenate([offsets, -offsets[1:]]), key=abs)
+    yaw = math.atan2(float(narrow_axis[1]), float(narrow_axis[0]))
     for offset, parallel in [(o, True) for o in candidates] + [(o, False) for o in candidates]:
-        section = cross_section(along, across, float(offset), cfg, parallel)
-        if section is None:
-            continue
-        low, high = section
-        center = centroid + offset * long_axis + (low + high) / 2 * narrow_axis
-        near = np.linalg.norm(xy - center, axis=1) <= cfg.strip_half_width
-        strip = np.abs(along - offset) <= cfg.strip_half_width
-        top = float(points[near if np.any(near) else strip, 2].max())
-        yaw = wrap_half_pi(math.atan2(float(narrow_axis[1]), float(narrow_axis[0])))
-        width = high - low + cfg.ray_spacing  # rays sample; the true edge lies up to one step out
-        return TopDownGrasp(position=np.array([center[0], center[1], top]), yaw=yaw, width_m=width)
+        grasp = grasp_at(points, centroid, long_axis, narrow_axis, yaw, float(offset), cfg, parallel)
+        if grasp is not None:
+            return grasp
     rims = rim_grasps(points, cfg, scene.layout.table_z)  # too wide everywhere: a bowl or a plate is taken by its rim
     return rims[0] if rims else None
 
@@ -163,6 +155,28 @@ def rim_grasps(points: FloatArray, cfg: OracleConfig, table_z: float) -> list[To
         grasps.append(TopDownGrasp(position=np.array([mid[0], mid[1], crest]), yaw=wrap_half_pi(theta),
                                    width_m=r_out - r_in + cfg.ray_spacing))
     return grasps
+
+
+def grasp_at(
+    points: FloatArray, centroid: FloatArray, along_axis: FloatArray, closing: FloatArray,
+    yaw: float, offset: float, cfg: OracleConfig, parallel: bool,
+) -> TopDownGrasp | None:
+    """The grasp closing along ``closing`` (yaw ``yaw``) at ``offset`` along ``along_axis`` from
+    the footprint's ``centroid``, if its cross-section fits (``cross_section``); its height is the
+    top surface next to the centre. Shared by the oracle and the static table's GT grasps."""
+    xy = points[:, :2]
+    along = (xy - centroid) @ along_axis  # [n]
+    across = (xy - centroid) @ closing  # [n]
+    section = cross_section(along, across, offset, cfg, parallel)
+    if section is None:
+        return None
+    low, high = section
+    center = centroid + offset * along_axis + (low + high) / 2 * closing
+    near = np.linalg.norm(xy - center, axis=1) <= cfg.strip_half_width
+    strip = np.abs(along - offset) <= cfg.strip_half_width
+    top = float(points[near if np.any(near) else strip, 2].max())
+    width = high - low + cfg.ray_spacing  # rays sample; the true edge lies up to one step out
+    return TopDownGrasp(position=np.array([center[0], center[1], top]), yaw=wrap_half_pi(yaw), width_m=width)
 
 
 def cross_section(

@@ -1,0 +1,54 @@
+"""File helpers that the compiler, the runtime and the evaluation all need, written once.
+
+``read_json`` reads a user's JSON file with one wording of its errors (missing, not JSON with
+the line); ``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
+large); ``fsync_dir`` makes a rename durable (the directory entry reaches the disk, not only the
+file); ``current_umask`` reads the process umask so staged folders get the permissions a plain
+``mkdir`` would have given them (``mkdtemp`` creates them 0o700).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MiB chunks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def current_umask() -> int:
+    """The process umask (reading it means setting it; it is put straight back)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def fsync_dir(folder: Path) -> None:
+    """fsync a directory so a rename into it survives a crash; a no-op where unsupported."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def read_json(path: Path, what: str, error: type[Exception] = ValueError) -> Any:
+    """The parsed JSON of ``path`` (a ``what``, e.g. "labels file"); ``error`` (the caller's
+    input-error type) names the file and, for bad JSON, the line — no traceback for a typo."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None

@@ -1,0 +1,105 @@
+"""What the episode-running commands share (``eval sim``, ``eval static``, ``eval recognition``).
+
+A progress bar on stderr, the ``--methods`` list, and one runner that times the evaluation, turns
+its input errors into exit code 2 and writes the report — written once, not per command.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Protocol
+
+import typer
+
+from .common import err, fail, note
+
+if TYPE_CHECKING:
+    from ..evaluation.methods import MethodSpec
+
+LayoutsOpt = Annotated[int, typer.Option(min=1, help="Layouts (scenes) per verb–target pair.")]
+MethodsOpt = Annotated[list[str] | None, typer.Option(
+    help="Methods to run, comma-separated or repeated (default: CRAFT-E, CRAFT, direct-LLM, alignment-only).")]
+SceneKbOpt = Annotated[Path | None, typer.Option(help="CRAFT-E bundle (default <kb-dir>/craft-e-default).")]
+SceneKbDirOpt = Annotated[Path | None, typer.Option(
+    help="Folder of the bundles (craft-e-default/, conceptnet/, direct-llm/).")]
+EpisodesJsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results (with every episode) as JSON.")]
+TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.")]
+MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
+SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
+JobsOpt = Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical to --jobs 1).")]
+
+
+class Report(Protocol):
+    """What an evaluation returns: its config (with a count of what it ran) and two renderings."""
+
+    config: dict[str, Any]
+
+    def to_markdown(self) -> str: ...
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+def split_names(values: list[str] | None) -> list[str] | None:
+    """``--methods A,B --methods C`` → ``[A, B, C]`` (None when not given)."""
+    if not values:
+        return None
+    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+
+
+def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | None) -> list[MethodSpec]:
+    """``--methods``/``--kb``/``--kb-dir`` as method specs, or exit 2 naming the bad one."""
+    from ...paths import KB_DIR
+    from ..evaluation.methods import select_methods
+
+    try:
+        return select_methods(split_names(methods), kb, kb_dir or KB_DIR)
+    except ValueError as exc:
+        fail(str(exc))
+
+
+class ProgressBar:
+    """A rich progress bar on stderr, usable as ``progress(done, total, record)``."""
+
+    def __enter__(self) -> ProgressBar:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeRemainingColumn,
+        )
+
+        self._bar = Progress(TextColumn("[bold]episodes"), BarColumn(), MofNCompleteColumn(),
+                             TimeRemainingColumn(), TextColumn("{task.description}"),
+                             console=Console(stderr=True), transient=False)
+        self._bar.__enter__()
+        self._task = self._bar.add_task("", total=None)
+        return self
+
+    def __call__(self, done: int, total: int, record: dict[str, Any]) -> None:
+        self._bar.update(self._task, completed=done, total=total, description=record.get("id", ""))
+
+    def __exit__(self, *exc: object) -> None:
+        self._bar.__exit__(None, None, None)
+
+
+def run_with_progress(
+    evaluate: Callable[[ProgressBar], Report], count: str, unit: str, json_out: Path | None,
+    markdown: Path | None, errors: tuple[type[BaseException], ...] = (),
+) -> Report:
+    """Run ``evaluate(progress)`` under a progress bar; ``errors`` become exit code 2. Prints
+    ``<config[count]> <unit> in N s`` and writes the Markdown table and JSON where asked."""
+    from ..evaluation.common import emit_report
+
+    start = time.perf_counter()
+    try:
+        with ProgressBar() as bar:
+            report = evaluate(bar)
+    except errors as exc:
+        fail(str(exc))
+    err.print(f"{report.config[count]} {unit} in {time.perf_counter() - start:.0f} s", highlight=False)
+    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
+    return report
