@@ -164,6 +164,7 @@ def test_two_runs_give_identical_json(first_run: dict[str, Any], run_dir: Path) 
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # the suite's 300 s cap is for unit tests; this is 4 methods x 105 episodes
 def test_full_dev_run_keeps_the_protocol_and_reproduces_the_published_json() -> None:
     """The whole dev label set (105 episodes, ~6 min on 2 cores, jobs=2 as in the README).
 
