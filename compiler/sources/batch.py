@@ -50,7 +50,7 @@ from pydantic import ValidationError
 
 from ...schemas.v1.records import Record, RecordRequest
 from ..cache import CacheError, atomic_write_bytes, check_payload, extract_json
-from .http_retry import make_client, response_json, send, with_retries
+from .http_retry import response_json, send, with_retries
 from .llm import (
     LLM_SOURCE,
     LLMSource,
@@ -67,6 +67,7 @@ from .transports import (
     OPENAI_MODEL,
     GeminiTransport,
     OpenAITransport,
+    _HTTPTransport,
     gemini_answer_text,
     openai_answer_text,
 )
@@ -144,12 +145,11 @@ class BatchBackend(Protocol):
 # --------------------------------------------------------------------------- HTTP backends
 
 
-class _HTTPBatch:
-    """What both batch APIs share: a pooled client, key scrubbing, retried HTTP calls."""
+class _HTTPBatch(_HTTPTransport):
+    """What both batch APIs share: the synchronous transports' base URL, model, pooled client
+    and key scrubbing, plus retried HTTP calls."""
 
     name: str
-    provider: str
-    key_env: str
 
     def __init__(
         self,
@@ -162,21 +162,9 @@ class _HTTPBatch:
         attempts: int = 4,
         sleep: Callable[[float], None] | None = None,
     ) -> None:
-        self.model = model
-        self.base_url = base_url.rstrip("/")
-        self._secrets: tuple[str, ...] = (api_key,) if api_key else ()
-        self._client = client or make_client(timeout_s, self._auth_headers(api_key))
+        super().__init__(model, base_url, api_key, timeout_s=timeout_s, client=client)
         self._attempts = attempts
         self._sleep = sleep
-
-    def __repr__(self) -> str:  # no key in reprs
-        return f"{type(self).__name__}(model={self.model!r}, base_url={self.base_url!r})"
-
-    def _auth_headers(self, api_key: str | None) -> dict[str, str]:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        self._client.close()
 
     def _call(self, method: str, url: str, what: str, **kwargs: Any) -> httpx.Response:
         """One HTTP call, retried on transient failures (429 Retry-After honoured)."""
