@@ -122,14 +122,22 @@ def direct_call(
     return PromptCall(load_prompt("verb_objects", asked), verb, variables)
 
 
-def records_by_subject(source: LLMSource, prompt_ref: str) -> dict[str, list[Record]]:
-    """This provider/model's stored records of one prompt (``id@version``), by subject."""
-    index: dict[str, list[Record]] = defaultdict(list)
+def records_by_prompt(
+    source: LLMSource, prompt_refs: tuple[str, ...]
+) -> dict[str, dict[str, list[Record]]]:
+    """This provider/model's stored records of each prompt (``id@version``), by subject, read in
+    one pass over the cache (a pass parses every record file: ~1.7 s for the shipped cache)."""
+    index: dict[str, dict[str, list[Record]]] = {ref: defaultdict(list) for ref in prompt_refs}
     for _, record in source.cache.iter_records(LLM_SOURCE):
         req = record.request
-        if req.prompt == prompt_ref and req.provider == source.provider and req.model == source.model:
-            index[req.subject].append(record)
+        if req.prompt in index and req.provider == source.provider and req.model == source.model:
+            index[req.prompt][req.subject].append(record)
     return index
+
+
+def records_by_subject(source: LLMSource, prompt_ref: str) -> dict[str, list[Record]]:
+    """This provider/model's stored records of one prompt (``id@version``), by subject."""
+    return records_by_prompt(source, (prompt_ref,))[prompt_ref]
 
 
 def index_object_records(source: LLMSource, version: str) -> dict[str, list[Record]]:
@@ -528,8 +536,10 @@ def plan_direct_calls(
     different object sets combine. A glossed verb is covered only by records asked in its sense.
     """
     verb_glosses = verb_glosses or {}
-    plain = records_by_subject(source, load_prompt("verb_objects", "v2").ref)
-    sensed = records_by_subject(source, load_prompt("verb_objects", SENSED_VERB_VERSION).ref)
+    plain_ref = load_prompt("verb_objects", "v2").ref
+    sensed_ref = load_prompt("verb_objects", SENSED_VERB_VERSION).ref
+    both = records_by_prompt(source, (plain_ref, sensed_ref))
+    plain, sensed = both[plain_ref], both[sensed_ref]
     covering: dict[str, list[Record]] = {}
     calls: list[PromptCall] = []
     for verb in verbs:
