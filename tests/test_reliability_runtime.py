@@ -109,13 +109,18 @@ def test_installed_and_unpacked_bundles_get_umask_modes(
     assert stat.S_IMODE(packages[0].stat().st_mode) == 0o644  # the .craft file itself
 
 
-@pytest.mark.skipif(os.geteuid() != 0 or shutil.which("runuser") is None, reason="needs root to switch users")
+#: runuser lives in /usr/sbin, which a non-login PATH may lack
+RUNUSER = shutil.which("runuser", path=os.pathsep.join([os.environ.get("PATH", ""), "/usr/sbin", "/sbin"]))
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or RUNUSER is None, reason="needs root and runuser to switch users")
 def test_another_user_can_read_a_bundle_root_installed(
     public_tmp: Path, packages: list[Path], keys: tuple[Path, Path], umask_022: None
 ) -> None:
     into = public_tmp / "kb"
     install(packages[0], into, [keys[1]])
-    r = subprocess.run(["runuser", "-u", "nobody", "--", "cat", str(into / "current" / MANIFEST_FILE)],
+    assert RUNUSER is not None
+    r = subprocess.run([RUNUSER, "-u", "nobody", "--", "cat", str(into / "current" / MANIFEST_FILE)],
                        capture_output=True, timeout=30)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["kb_version"] == "1.0.0"
