@@ -33,6 +33,8 @@ def eval_sim(
     gripper: Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")] = "panda",
     wrist_look: Annotated[bool, typer.Option(help="Re-centre each grasp from one wrist depth frame at "
                                                   "pre-grasp (closed-loop correction).")] = True,
+    refine_grasps: Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
+                                                     "it onto a vessel's wall, when that fits (sim/refine.py).")] = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -40,12 +42,14 @@ def eval_sim(
     from ..sim.episode import sim_configs
     from ..sim.pipeline import PipelineConfig
     from ..sim.placement import PlacementError
+    from ..sim.refine import RefineConfig
 
     try:
         env_config, pick = sim_configs(gripper, wrist_look)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
-                                pick=pick)
+                                pick=pick,
+                                refine=RefineConfig(enabled=refine_grasps))
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir)

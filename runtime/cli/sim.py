@@ -24,6 +24,8 @@ def demo(
     gripper: Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")] = "panda",
     wrist_look: Annotated[bool, typer.Option(help="Re-centre the grasp from one wrist depth frame at "
                                                   "pre-grasp.")] = True,
+    refine_grasps: Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
+                                                     "it onto a vessel's wall, when that fits (sim/refine.py).")] = True,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -43,13 +45,15 @@ def demo(
     from ..sim.episode import sim_configs
     from ..sim.figures import FrameRecorder, describe, plot_episode
     from ..sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
+    from ..sim.refine import RefineConfig
     from .common import err, fail
     from .common import out as console
 
     try:
         env_config, pick = sim_configs(gripper, wrist_look)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
-                                pick=pick)
+                                pick=pick,
+                                refine=RefineConfig(enabled=refine_grasps))
         all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:
         fail(str(exc))

@@ -110,6 +110,7 @@ def perceive_for_pick(
         roi_points,
         tip_height,
         torch_threads,
+        with_refinements,
     )
 
     if config.grasp == "oracle" or config.rois == "oracle":
@@ -131,7 +132,8 @@ def perceive_for_pick(
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
         for i, roi in enumerate(rois):
             material = roi_points(world, raised, roi)  # [m, 3]
-            fitting = [c for c in raw[i] if c.pose is not None and (not config.fit_filter or finger_check(
+            expanded = with_refinements(raw[i], material, obs, table_z, config)
+            fitting = [c for c in expanded if c.pose is not None and (not config.fit_filter or finger_check(
                 material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0])]
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),

@@ -73,6 +73,7 @@ from .assets import object_catalog
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
 from .oracle import gt_rois, oracle_grasp
+from .refine import RefineConfig
 from .scene import Scene, SceneSpec
 
 FloatArray = npt.NDArray[np.float64]
@@ -143,6 +144,7 @@ class PipelineConfig:
     fingers: FingerGeometry = field(default_factory=FingerGeometry)
     pick: PickConfig = field(default_factory=PickConfig)
     segment: SegmentConfig = field(default_factory=SegmentConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)  # turn / move misfitting grasps (refine.py)
 
     def __post_init__(self) -> None:
         if self.grasp not in GRASP_SOURCES:
@@ -161,6 +163,7 @@ class PipelineConfig:
             "detect_iou": self.detect_iou,
             "torch_threads": self.torch_threads,
             "rgb_scale": self.rgb_scale,
+            "refine_grasps": self.refine.enabled,
         }
 
 
@@ -348,6 +351,38 @@ def raw_candidates(
     return [_with_poses(obs, r) for r in rects]
 
 
+def with_refinements(
+    candidates: Sequence[GraspCandidate], material: FloatArray, obs: Observation, table_z: float,
+    config: PipelineConfig,
+) -> list[GraspCandidate]:
+    """``candidates`` with, right after each one the fingers do not fit around, its refinement
+    (``refine.refine``: turned, or moved onto a wall) if one fits. Both the evaluation's path and
+    the robot's use this one list, so they check the same grasps in the same order."""
+    from .refine import refine
+
+    if not (config.refine.enabled and config.fit_filter):
+        return list(candidates)
+
+    def tip_z_of(pose: TopDownGrasp) -> float:
+        return tip_height(pose, config.pick, table_z)
+
+    out: list[GraspCandidate] = []
+    for c in candidates:
+        out.append(c)
+        if c.pose is None or finger_check(material, c.pose, tip_z_of(c.pose), config.fingers)[0]:
+            continue
+        better = refine(c.pose, material, tip_z_of, config.fingers, config.refine)
+        if better is None:
+            continue
+        try:
+            rect = pose_to_rect(better, obs.intrinsics, obs.cam_to_world, quality=c.quality,
+                                length_px=c.rect.length_px)
+        except ValueError:
+            continue
+        out.append(GraspCandidate(rect, better))
+    return out
+
+
 def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
     """The ROI's raised depth points ``[m, 3]`` (row-major order, as ``world[mask & raised]``),
     gathered inside its box only: the grasp checks need them for every ROI."""
@@ -493,8 +528,9 @@ def perceive(
     with _stage(timings, "grasp_checks"):
         world = obs.points_world()  # [H, W, 3]
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
-        checked = [_usable(env, raw[i], _Surfaces(roi_points(world, raised, roi), table_z), config)
-                   for i, roi in enumerate(rois)]
+        surfaces = [_Surfaces(roi_points(world, raised, roi), table_z) for roi in rois]
+        checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config)
+                   for i, s in enumerate(surfaces)]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
