@@ -94,7 +94,7 @@ def main() -> None:
                 timings: dict[str, float] = {}
                 lazy = perceive_for_pick(env, enc, cfg, obs, timings=timings)
                 t0 = time.perf_counter()
-                choice = ground_lazily(grounder, spec.verb, lazy, pick_reachable(env, cfg))
+                choice = ground_lazily(grounder, spec.verb, lazy, pick_reachable(env, cfg, lazy))
                 timings["ground_ik"] = time.perf_counter() - t0
                 plans += choice.plans
                 chosen = choice.grounding.chosen

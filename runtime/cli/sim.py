@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Annotated
@@ -26,6 +27,8 @@ def demo(
                                                   "pre-grasp.")] = True,
     refine_grasps: Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
                                                      "it onto a vessel's wall, when that fits (sim/refine.py).")] = True,
+    clearance: Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
+                                                 "overhead depth shows (sim/clearance.py; off: too strict as a filter).")] = False,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -41,6 +44,7 @@ def demo(
     from ..grounding.grounder import normalize_verb_name
     from ..grounding.settings import GroundingSettings
     from ..kb.bundle import BundleError, load_bundle
+    from ..sim.clearance import ClearanceConfig
     from ..sim.env import SimEnv
     from ..sim.episode import sim_configs
     from ..sim.figures import FrameRecorder, describe, plot_episode
@@ -51,6 +55,7 @@ def demo(
 
     try:
         env_config, pick = sim_configs(gripper, wrist_look)
+        pick = dataclasses.replace(pick, clearance=ClearanceConfig(enabled=clearance))
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
                                 pick=pick,
                                 refine=RefineConfig(enabled=refine_grasps))

@@ -26,6 +26,7 @@ import numpy.typing as npt
 
 from ..grounding.grounder import Grounding
 from ..perception.roi import ROI
+from .clearance import HeightMap
 
 if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder
@@ -46,6 +47,7 @@ class LazyROI:
     embedding: npt.NDArray[np.float32]
     fitting: list[object]  # grasps that passed the finger check, best first (opaque here)
     scores: list[float]  # their scores, parallel to ``fitting``
+    heights: HeightMap | None = None  # the other objects' surfaces, for the pick's clearance check
     next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
     verified: set[int] = field(default_factory=set)  # indices IK accepted
 
@@ -103,6 +105,7 @@ def perceive_for_pick(
     oracle settings use the simulator's ground truth, which a robot does not have)."""
     from ..encoders.image import crop_box
     from ..perception.segment import segment
+    from .clearance import heights_around
     from .pipeline import (
         _stage,
         finger_check,
@@ -137,18 +140,22 @@ def perceive_for_pick(
                 material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0])]
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
-                               list(fitting), [c.quality for c in fitting]))
+                               list(fitting), [c.quality for c in fitting],
+                               heights_around(world, raised, roi.mask, table_z, config.pick.clearance)))
     return out
 
 
-def pick_reachable(env: SimEnv, config: PipelineConfig) -> Callable[[object], bool]:
-    """``reachable`` for ``ground_lazily``: the whole pick's IK plan (``plan_pick``), as
-    ``perceive`` checks it (always True when ``config.ik_filter`` is off)."""
+def pick_reachable(env: SimEnv, config: PipelineConfig, rois: Sequence[LazyROI]) -> Callable[[object], bool]:
+    """``reachable`` for ``ground_lazily``: the whole pick's IK plan and its clearance from the
+    other objects of the grasp's ROI (``plan_pick``), as ``perceive`` checks it (always True
+    when ``config.ik_filter`` is off)."""
     from .episode import plan_pick
     from .pipeline import GraspCandidate
 
+    heights = {id(g): r.heights for r in rois for g in r.fitting}
+
     def reachable(grasp: object) -> bool:
         assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
-        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick) is None
+        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick, heights.get(id(grasp))) is None
 
     return reachable

@@ -23,6 +23,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from ..grasp.geometry import TopDownGrasp
+from .clearance import ClearanceConfig, HeightMap, arm_hits, hand_hits
 from .env import EnvConfig, SimEnv
 from .gripper import GripperConfig
 from .hands import hand_spec
@@ -66,6 +67,7 @@ class PickConfig:
     # (pinched, or where it was relative to the TCP): catches objects sliding out slowly.
     hold_steps: int = 48
     wrist: WristConfig = field(default_factory=WristConfig)
+    clearance: ClearanceConfig = field(default_factory=ClearanceConfig)  # robot-side, see plan_pick
     # Lift high enough to carry the object over the tallest surface in the overhead depth
     # frame (plus this margin) when reachable: a low carry swept held objects into tall
     # distractors (cut/knife/0: the hand hit a box on the way to the zone, the knife fell).
@@ -169,14 +171,37 @@ def _plan(
     return _Plan(pre, descent, lift, transport, lower, grasp_z)
 
 
-def plan_pick(env: SimEnv, grasp: TopDownGrasp, config: PickConfig | None = None) -> str | None:
-    """Check a pick without moving: None if every waypoint is reachable, else which is not.
+def plan_pick(
+    env: SimEnv, grasp: TopDownGrasp, config: PickConfig | None = None, obstacles: HeightMap | None = None,
+) -> str | None:
+    """Check a pick without moving: None if every waypoint is reachable (and, given the
+    ``obstacles`` the overhead depth shows, clear of them), else what is wrong.
 
-    The same plan ``execute_pick`` makes, so a robot can skip grasps it could not execute (IK is
-    information a real controller has before it moves).
+    The same plan ``execute_pick`` makes, so a robot can skip grasps it could not execute (IK and
+    its own depth frame are information a real controller has before it moves).
     """
-    plan = _plan(env.robot, env.scene, grasp, config or PickConfig())
-    return plan if isinstance(plan, str) else None
+    cfg = config or PickConfig()
+    plan = _plan(env.robot, env.scene, grasp, cfg)
+    if isinstance(plan, str):
+        return plan
+    if obstacles is None or not cfg.clearance.enabled:
+        return None
+    return obstructed(env.robot, plan, obstacles, cfg.clearance)
+
+
+def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: ClearanceConfig) -> str | None:
+    """Would the approach touch what the depth camera sees? The joint path from the arm's
+    current posture to the pre-grasp (arm and hand), then the descent's end (the grasp)."""
+    boxes = robot.gripper.hand.clearance_boxes
+    start, pre = robot.joint_positions(), plan.pre.q
+    path = [start + t * (pre - start) for t in np.linspace(0.0, 1.0, cfg.path_samples + 1)[1:]]
+    for q in [*path, plan.descent[-1].q]:
+        tcp = robot.forward(q)
+        why = hand_hits(tcp.position, tcp.yaw, boxes, obstacles, cfg) or arm_hits(
+            robot.joint_points(q, cfg.arm_joints), obstacles, cfg)
+        if why is not None:
+            return f"approach blocked: {why}"
+    return None
 
 
 def _body_z(scene: Scene, body: int) -> float:

@@ -26,6 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from .clearance import HandBox
+
 HandName = Literal["robotiq_2f85", "panda"]
 HAND_NAMES: tuple[str, ...] = get_args(HandName)
 DEFAULT_HAND: HandName = "panda"
@@ -70,6 +72,9 @@ class HandSpec:
     # spinning friction (``SurfaceModel``, 0.002 m), giving 0.006 m, a ~1 cm pad contact patch.
     pad_spinning_friction: float = 3.0
     pad_rolling_friction: float = 0.0
+    # The open hand in the TCP frame for the depth clearance check (``clearance.py``); measured
+    # from the model's link boxes, re-measured by ``tests/test_clearance.py``.
+    clearance_boxes: tuple[HandBox, ...] = ()
 
 
 ROBOTIQ_2F85 = HandSpec(
@@ -97,6 +102,11 @@ ROBOTIQ_2F85 = HandSpec(
     tcp_offset=0.1496,
     force=8.0,  # N·m per driven joint; see GripperConfig for the measured pad force
     max_speed=2.0,  # rad/s (the URDF limit): full close in ~0.45 s (the real one: ~0.6 s)
+    clearance_boxes=(
+        HandBox(0.041, -0.045, 0.045, 0.057, 0.155),  # base
+        HandBox(0.022, 0.005, 0.058, 0.037, 0.096, mirrored=True),  # inner knuckles, over the object
+        HandBox(0.016, 0.042, 0.076, 0.001, 0.107, mirrored=True),  # fingers and pads
+    ),
 )
 
 PANDA = HandSpec(
@@ -116,6 +126,10 @@ PANDA = HandSpec(
     tcp_offset=0.1034,
     force=40.0,  # N per finger; above the rated 20 N so heavy bottles do not slip
     max_speed=0.2,
+    clearance_boxes=(
+        HandBox(0.036, -0.106, 0.106, 0.033, 0.133),  # the hand's body, 21 cm along the closing axis
+        HandBox(0.014, 0.036, 0.070, -0.013, 0.049, mirrored=True),  # open fingers
+    ),
 )
 
 HANDS: dict[str, HandSpec] = {h.name: h for h in (ROBOTIQ_2F85, PANDA)}

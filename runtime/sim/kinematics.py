@@ -9,6 +9,7 @@ report ``ik_failure`` without touching the simulation.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -87,22 +88,33 @@ class SerialChain:
         checks run forward kinematics thousands of times per scene)."""
         return tuple(cross_matrices(j.axis) for j in self.joints)
 
-    def forward(self, q: npt.NDArray[np.float64]) -> Mat4:
-        """Pose of the end link in the root frame for the movable joint values ``q``."""
+    def _poses(self, q: npt.NDArray[np.float64]) -> Iterator[tuple[str, Mat4]]:
+        """Each joint's child frame in the root frame, in chain order."""
         pose = np.eye(4)
         values = iter(np.asarray(q, dtype=np.float64))
         for joint, (kx, kx2) in zip(self.joints, self._rodrigues_parts, strict=True):
             pose = pose @ joint.origin
-            if not joint.movable:
-                continue
-            motion = np.eye(4)
-            value = float(next(values))
-            if joint.kind == "prismatic":
-                motion[:3, 3] = joint.axis * value
-            else:
-                motion[:3, :3] = _rodrigues(kx, kx2, value)
-            pose = pose @ motion
-        return pose
+            if joint.movable:
+                motion = np.eye(4)
+                value = float(next(values))
+                if joint.kind == "prismatic":
+                    motion[:3, 3] = joint.axis * value
+                else:
+                    motion[:3, :3] = _rodrigues(kx, kx2, value)
+                pose = pose @ motion
+            yield joint.name, pose
+
+    def frames(self, q: npt.NDArray[np.float64]) -> dict[str, Mat4]:
+        """Pose of every joint's child frame, by joint name: the clearance check needs the
+        elbow and wrist, not only the end link."""
+        return dict(self._poses(q))
+
+    def forward(self, q: npt.NDArray[np.float64]) -> Mat4:
+        """Pose of the end link in the root frame for the movable joint values ``q``."""
+        last = np.eye(4)
+        for _, last in self._poses(q):  # noqa: B007 - the loop's last value is the answer
+            continue
+        return last
 
 
 def load_chain(urdf: Path, end_link: str) -> SerialChain:

@@ -70,6 +70,7 @@ from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
 from ..perception.segment import SegmentConfig, segment
 from .assets import object_catalog
+from .clearance import HeightMap, heights_around
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
 from .oracle import gt_rois, oracle_grasp
@@ -398,6 +399,7 @@ class _Surfaces:
 
     material: FloatArray  # [m, 3] world
     table_z: float
+    heights: HeightMap | None = None  # the other objects' surfaces, for the clearance check
 
 
 def _check(
@@ -416,7 +418,7 @@ def _check(
             return GraspCandidate(candidate.rect, candidate.pose, False, None, detail)
     reachable: bool | None = None
     if ik:
-        why = plan_pick(env, candidate.pose, config.pick)
+        why = plan_pick(env, candidate.pose, config.pick, surfaces.heights)
         reachable = why is None
         detail = why or ""
     return GraspCandidate(candidate.rect, candidate.pose, fits, reachable, detail)
@@ -528,7 +530,9 @@ def perceive(
     with _stage(timings, "grasp_checks"):
         world = obs.points_world()  # [H, W, 3]
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
-        surfaces = [_Surfaces(roi_points(world, raised, roi), table_z) for roi in rois]
+        clear = config.pick.clearance
+        surfaces = [_Surfaces(roi_points(world, raised, roi), table_z,
+                              heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
         checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config)
                    for i, s in enumerate(surfaces)]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
@@ -542,7 +546,9 @@ def perceive(
         if perceived[best].target_iou >= config.detect_iou:
             target_roi = best
     assert obs.seg is not None
-    target_surfaces = _Surfaces(world[(obs.seg == target_body) & raised], table_z)
+    target_mask = obs.seg == target_body
+    target_surfaces = _Surfaces(world[target_mask & raised], table_z,
+                                heights_around(world, raised, target_mask, table_z, config.pick.clearance))
     three_d, why = _three_d(env, obs, perceived[target_roi] if target_roi is not None else None,
                             target_body, target_surfaces, config)
     return ScenePerception(

@@ -181,6 +181,12 @@ class CR3Robot:
         local = self.chain.forward(q)
         return TcpPose(local[:3, 3] + self.base_position, local[:3, :3])
 
+    def joint_points(self, q: FloatArray, names: Sequence[str]) -> FloatArray:
+        """World positions ``[k, 3]`` of the named joints' frames for configuration ``q`` (model
+        only, like ``forward``)."""
+        frames = self.chain.frames(q)
+        return np.array([frames[n][:3, 3] for n in names]) + self.base_position
+
     def reset_home(self) -> None:
         """Teleport to the home configuration (setup only) and hold it."""
         for joint, value in zip(self.arm_joints, HOME_Q, strict=True):

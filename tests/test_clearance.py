@@ -1,0 +1,123 @@
+"""The approach's clearance from what the overhead depth shows (``sim.clearance``).
+
+Why: IK only says a grasp is reachable. On the dev scenes half the picks that "closed on nothing"
+had never reached their grasp: the forearm or the 21 cm Franka hand came down on a tall box
+beside the target. These tests pin the geometry on synthetic height maps with known answers, and
+check that the hand boxes the check uses cover the hand models pybullet actually simulates.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import pybullet as p
+import pytest
+
+from craft_e.runtime.sim.clearance import ClearanceConfig, HandBox, HeightMap, arm_hits, hand_hits
+from craft_e.runtime.sim.env import EnvConfig, SimEnv
+from craft_e.runtime.sim.gripper import GripperConfig
+from craft_e.runtime.sim.hands import HAND_NAMES, PANDA, hand_spec
+from craft_e.runtime.sim.scene import SceneSpec
+
+FloatArray = npt.NDArray[np.float64]
+CFG = ClearanceConfig()
+
+
+def block(x0: float, x1: float, y0: float, y1: float, z: float, step: float = 0.002) -> FloatArray:
+    """Top surface ``[n, 3]`` of an axis-aligned block."""
+    xs, ys = np.arange(x0, x1 + 1e-9, step), np.arange(y0, y1 + 1e-9, step)
+    gx, gy = np.meshgrid(xs, ys)
+    return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)])
+
+
+def test_height_map_keeps_the_highest_surface_and_treats_unseen_cells_as_free() -> None:
+    pts = np.array([[0.0, 0.0, 0.01], [0.001, 0.001, 0.05], [0.10, 0.0, 0.02], [np.nan, 0.0, 0.3]])
+    hm = HeightMap(pts, 0.005, 0.0)
+    got = hm.heights(np.array([[0.0005, 0.0005], [0.1002, 0.0002], [0.05, 0.0], [5.0, 5.0]]))
+    np.testing.assert_allclose(got, [0.05, 0.02, 0.0, 0.0])
+    # within 6 cm of (0.05, 0): both surfaces; the highest wins
+    assert hm.heights(np.array([[0.05, 0.0]]), radius=0.06)[0] == pytest.approx(0.05)
+    assert HeightMap(np.zeros((0, 3)), 0.005, 0.0).heights(np.zeros((1, 2)))[0] == 0.0
+
+
+def test_a_tall_box_beside_a_thin_object_blocks_the_hand_unless_it_turns_away() -> None:
+    """A knife along y at the origin (1.5 cm high), a 21 cm box 5 cm away along x."""
+    knife = block(-0.008, 0.008, -0.10, 0.10, 0.015)
+    box = block(0.05, 0.12, -0.10, 0.10, 0.21)
+    tcp = np.array([0.0, 0.0, 0.0176])  # as the executor places it over a 1.5 cm object
+    scene = HeightMap(np.concatenate([knife, box]), CFG.cell, 0.0)
+    across_knife = hand_hits(tcp, 0.0, PANDA.clearance_boxes, scene, CFG)  # closes along x, into the box
+    assert across_knife is not None
+    # the knife alone is clear across it; closing along it, a finger would land on it
+    alone = HeightMap(knife, CFG.cell, 0.0)
+    assert hand_hits(tcp, 0.0, PANDA.clearance_boxes, alone, CFG) is None
+    assert hand_hits(tcp, math.pi / 2, PANDA.clearance_boxes, alone, CFG) is not None
+    # the box alone: the hand's 21 cm run along y keeps its 7.2 cm width clear of it
+    lone_box = HeightMap(box, CFG.cell, 0.0)
+    assert hand_hits(tcp, math.pi / 2, PANDA.clearance_boxes, lone_box, CFG) is None
+    assert hand_hits(tcp, 0.0, PANDA.clearance_boxes, lone_box, CFG) is not None
+
+
+def test_the_grasped_surface_itself_does_not_block_the_hand() -> None:
+    """The executor puts the TCP 3 cm below the grasped surface; the hand's body starts 3.3 cm
+    above the TCP, so a flat object under the whole hand is clear and one 1 cm taller is not."""
+    flat = HeightMap(block(-0.15, 0.15, -0.05, 0.05, 0.05), CFG.cell, 0.0)
+    tcp = np.array([0.0, 0.0, 0.05 - 0.03])
+    boxes = (PANDA.clearance_boxes[0],)  # the body only: the fingers would straddle a real grasp
+    assert hand_hits(tcp, 0.0, boxes, flat, CFG) is None
+    taller = HeightMap(block(-0.15, 0.15, -0.05, 0.05, 0.06), CFG.cell, 0.0)
+    assert hand_hits(tcp, 0.0, boxes, taller, CFG) is not None
+
+
+def test_arm_capsules_touch_only_surfaces_within_their_radius() -> None:
+    hm = HeightMap(block(0.20, 0.26, -0.03, 0.03, 0.22), CFG.cell, 0.0)  # a tall bottle
+    low = np.array([[0.0, 0.0, 0.25], [0.45, 0.0, 0.25]])  # forearm 3 cm above its top
+    high = low + np.array([0.0, 0.0, 0.10])
+    beside = low + np.array([0.0, 0.20, 0.0])
+    assert arm_hits(low, hm, CFG) is not None
+    assert arm_hits(high, hm, CFG) is None
+    assert arm_hits(beside, hm, CFG) is None
+
+
+def _link_boxes_in_tcp_frame(hand: str) -> list[FloatArray]:
+    """Corners ``[8, 3]`` (x across, y along the closing axis, z *above* the TCP) of every hand
+    link's pybullet AABB, with the hand open and pointing straight down at yaw 0."""
+    out: list[FloatArray] = []
+    with SimEnv(EnvConfig(gripper=GripperConfig(hand=hand))) as env:  # type: ignore[arg-type]
+        env.reset(SceneSpec("cut", "knife", ("apple",), 0))
+        robot, client = env.robot, env.client
+        solution = robot.solve_ik((0.4, 0.0, 0.3), 0.0)
+        for joint, q in zip(robot.arm_joints, solution.q, strict=True):
+            p.resetJointState(robot.body_id, joint, float(q), physicsClientId=client)
+        tcp = robot.tcp_pose()
+        assert abs(math.remainder(tcp.yaw, math.pi)) < 0.02
+        first_hand_link = robot.hand_link
+        for link in range(first_hand_link, p.getNumJoints(robot.body_id, physicsClientId=client)):
+            if link == robot.tcp_link:
+                continue
+            lo, hi = p.getAABB(robot.body_id, link, physicsClientId=client)
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            local = (corners - tcp.position) @ tcp.rotation
+            local[:, 2] *= -1.0  # the TCP's z points down the approach
+            out.append(local)
+    return out
+
+
+def _inside(point: FloatArray, box: HandBox, tol: float) -> bool:
+    x, y, z = point
+    ys = [y, -y] if box.mirrored else [y]
+    return abs(x) <= box.half_x + tol and box.z_lo - tol <= z <= box.z_hi + tol and any(
+        box.y_lo - tol <= v <= box.y_hi + tol for v in ys)
+
+
+@pytest.mark.parametrize("hand", HAND_NAMES)
+def test_clearance_boxes_cover_the_simulated_hand(hand: str) -> None:
+    """Every corner of every hand link's collision box lies in one of the clearance boxes (5 mm
+    tolerance: pybullet pads AABBs by its collision margin)."""
+    boxes = hand_spec(hand).clearance_boxes
+    assert boxes
+    for corners in _link_boxes_in_tcp_frame(hand):
+        for c in corners:
+            assert any(_inside(c, b, 0.005) for b in boxes), (hand, np.round(c, 3))
