@@ -16,7 +16,13 @@ from torch import nn
 
 from craft_e.runtime.grasp import registry
 from craft_e.runtime.grasp.base import GraspMaps, GraspNet
-from craft_e.runtime.grasp.fused import FusedGenerativeResnet, fused, merged_head, polyphase_weight
+from craft_e.runtime.grasp.fused import (
+    FusedGenerativeResnet,
+    fused,
+    merged_head,
+    phase_head_weight,
+    polyphase_weight,
+)
 from craft_e.runtime.grasp.grconvnet import GenerativeResnet
 from craft_e.runtime.grasp.registry import load, models_dir
 
@@ -90,3 +96,24 @@ def test_fused_from_state_dict_is_frozen_and_other_nets_pass_through() -> None:
     assert not fast.training and not any(p.requires_grad for p in fast.parameters())
     ggcnn = load("ggcnn")
     assert fused(ggcnn) is ggcnn
+
+
+@pytest.mark.parametrize("offset", [-2, -1, 0, 3])
+def test_phase_head_equals_the_full_resolution_conv(offset: int) -> None:
+    """A conv reading rows ``i + u + offset`` of a map, run on the map's four phases, gives the
+    four phases of its output (zero padding beyond the map on both sides)."""
+    gen = torch.Generator().manual_seed(offset + 10)
+    w = torch.randn(2, 3, 5, 5, generator=gen)
+    x = torch.randn(1, 3, 14, 18, generator=gen)  # even sides: 7 x 9 phase pixels
+    pad = 12  # enough zeros around x for every tap
+    xp = torch.nn.functional.pad(x, [pad] * 4)
+    out_h, out_w = 10, 12
+    want = torch.nn.functional.conv2d(xp, w)[..., pad + offset : pad + offset + out_h, pad + offset : pad + offset + out_w]
+    phases = torch.nn.functional.pixel_unshuffle(x, 2)  # [1, 12, 7, 9]: channel 4c + 2 r_y + r_x
+    wp, s_min = phase_head_weight(w, offset)
+    p = 8  # output phase row M reads phase rows M + s_min ...: at conv row M + s_min + p
+    got = torch.nn.functional.conv2d(phases, wp, padding=p)
+    got = got[..., s_min + p : s_min + p + out_h // 2, s_min + p : s_min + p + out_w // 2]
+    got = torch.nn.functional.pixel_shuffle(got, 2)
+    assert got.shape == want.shape
+    assert torch.allclose(got, want, atol=1e-5)
