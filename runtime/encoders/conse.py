@@ -14,13 +14,14 @@ hash), never pickled.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 from collections.abc import Sequence
 from functools import cache
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -34,6 +35,9 @@ from .text import (
     EncoderError,
     load_text_encoder,
 )
+
+if TYPE_CHECKING:
+    from torch import nn
 
 CONSE_TOP_K = 10
 ENCODER_CACHE_DIR = CACHE_DIR / "encoders"
@@ -154,10 +158,11 @@ class ConSEImageEncoder:
         self.tta = tta
         self.threads = threads  # torch intra-op threads during forward passes (None: torch's default)
         self._torch = torch
-        self.classifier = load_efficientnet_lite0(weights)
+        self.classifier: nn.Module = load_efficientnet_lite0(weights)
         self.class_names = imagenet_class_names()
         self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder)  # [1000, d]
         variant = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
+        self._fused_twin: ConSEImageEncoder | None = None
         self.id = (f"conse-k{top_k}{variant}:efficientnet-lite0@{EFFICIENTNET_LITE0_SHA256[:12]}"
                    f"+{MINILM_ID}@{MINILM_SHA256[:12]}")
 
@@ -190,6 +195,23 @@ class ConSEImageEncoder:
             if self.threads:
                 torch.set_num_threads(previous)
         return out
+
+    def fused(self) -> ConSEImageEncoder:
+        """This encoder with the classifier's inference rewrite (``encoders.fused``: batch norm
+        folded, channels-last; the same embeddings to float rounding), built once and shared
+        with this encoder's class embeddings. Its ``id`` says so."""
+        twin = self._fused_twin
+        if twin is None:
+            from .efficientnet import EfficientNetLite0
+            from .fused import FusedEfficientNetLite0
+
+            assert isinstance(self.classifier, EfficientNetLite0)
+            twin = copy.copy(self)
+            twin.classifier = FusedEfficientNetLite0.from_reference(self.classifier)
+            twin.id = f"{self.id}+fused"
+            twin._fused_twin = twin
+            self._fused_twin = twin
+        return twin
 
     def top_classes(self, crops: Sequence[UInt8Image], k: int = 5) -> list[list[tuple[str, float]]]:
         """The k most probable class names per crop, for inspection and sanity checks."""

@@ -33,6 +33,18 @@ class ImageEncoder(Protocol):
     def embed_images(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> FloatArray: ...
 
 
+@runtime_checkable
+class FusableImageEncoder(ImageEncoder, Protocol):
+    """An encoder with a faster inference twin: the same embeddings to float rounding."""
+
+    def fused(self) -> ImageEncoder: ...
+
+
+def inference_encoder(encoder: ImageEncoder) -> ImageEncoder:
+    """``encoder``'s fused twin where it has one (the robot's path), else ``encoder``."""
+    return encoder.fused() if isinstance(encoder, FusableImageEncoder) else encoder
+
+
 def as_rgb_uint8(image: npt.ArrayLike) -> UInt8Image:
     """Validate an ``HxWx3`` uint8 image (grey ``HxW`` and RGBA are converted)."""
     arr = np.asarray(image)

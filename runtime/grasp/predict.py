@@ -187,7 +187,12 @@ def prepare_input(
 
 
 @cache
-def _cached_model(name: str, device: str) -> GraspNet:
+def _cached_model(name: str, device: str, fuse: bool = False) -> GraspNet:
+    """The loaded network, or its inference rewrite (``grasp.fused``) with ``fuse``."""
+    if fuse:
+        from .fused import fused
+
+        return fused(_cached_model(name, device)).to(device)
     return load(name, device=device)
 
 
@@ -238,10 +243,10 @@ class FrameMaps:
 
 
 def _run(spec: GraspModelSpec, rgb: RGBImage | None, depth: Float32Array,
-         window: CropWindow | FrameWindow, device: str) -> FrameMaps:
+         window: CropWindow | FrameWindow, device: str, fuse: bool = False) -> FrameMaps:
     """The network on one crop window: smoothed maps and valid-depth network pixels."""
     x, holes = prepare_input(spec, rgb, depth, window)
-    model = _cached_model(spec.name, str(device))
+    model = _cached_model(spec.name, str(device), fuse)
     with torch.inference_mode():
         out = model(x.to(device))
     return FrameMaps(post_process(out, spec.width_scale_px), window, ~holes)
@@ -256,6 +261,7 @@ def predict_frame(
     device: str = "cpu",
     *,
     native: bool = True,
+    fused: bool = False,
 ) -> FrameMaps:
     """One pass of network ``name`` over the window holding every mask.
 
@@ -264,7 +270,8 @@ def predict_frame(
     Otherwise the square crop ``choose_crop`` frames the union with, resized to the network's
     input size (one pass at the cost of one ROI's, but objects shrink ~2x in a full scene:
     measured worse on the static protocol, BENCHMARKS.md). With no non-empty mask, the centre
-    crop."""
+    crop. ``fused``: run the network's inference rewrite (``grasp.fused``; same maps to float
+    rounding, faster on CPU) instead of the checkpoint's layer layout."""
     d = np.asarray(depth, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"depth must be HxW, got shape {d.shape}")
@@ -279,7 +286,7 @@ def predict_frame(
         window = frame_window(hw, union, spec.input_size)
     else:
         window = choose_crop(hw, spec.input_size, union if has_union else None, crop_size)
-    return _run(spec, rgb, d, window, device)
+    return _run(spec, rgb, d, window, device, fused)
 
 
 def predict_grasps_rois(
@@ -295,11 +302,13 @@ def predict_grasps_rois(
     device: str = "cpu",
     antipodal_config: AntipodalConfig | None = None,
     native: bool = True,
+    fused: bool = False,
 ) -> list[list[Grasp2D]]:
     """``predict_grasps`` for several regions of one frame with one network pass for all of them
     (see the module docstring): one list per mask, best first, every centre on its mask.
 
-    ``native`` and ``crop_size``: see ``predict_frame``; the antipodal sampler runs per region.
+    ``native``, ``crop_size`` and ``fused``: see ``predict_frame``; the antipodal sampler runs
+    per region.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown grasp backend {backend!r}; choose one of {', '.join(BACKENDS)}")
@@ -311,7 +320,7 @@ def predict_grasps_rois(
     present = [m for m in bool_masks if m.any()]
     if not present:
         return [[] for _ in bool_masks]
-    frame = predict_frame(backend, rgb, d, present, crop_size, device, native=native)
+    frame = predict_frame(backend, rgb, d, present, crop_size, device, native=native, fused=fused)
     return [frame.grasps_in(m, max_grasps, min_quality) if m.any() else [] for m in bool_masks]
 
 

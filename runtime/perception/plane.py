@@ -43,7 +43,11 @@ class PlaneFitConfig:
 
 
 def _plane_through(points: FloatArray) -> Plane | None:
-    normal = np.cross(points[1] - points[0], points[2] - points[0])
+    u0, u1, u2 = (points[1] - points[0]).tolist()
+    v0, v1, v2 = (points[2] - points[0]).tolist()
+    # np.cross(u, v), written out: the same products and differences in the same order (so the
+    # same bits), without np.cross's ~60 us of array plumbing per call (200 calls per frame)
+    normal = np.array([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0])
     norm = float(np.linalg.norm(normal))
     if norm < 1e-9:
         return None

@@ -66,21 +66,40 @@ def _colour_foreground(
     The table colour model is the median of the pixels that lie on the plane, with a robust
     spread (median absolute deviation) so a textured table raises its own threshold.
     """
-    colours = rgb[on_table]  # [n, 3] uint8
-    n = len(colours)
+    n = int(np.count_nonzero(on_table))
     if n == 0:
         return np.zeros(near_plane.shape, dtype=bool)
     # Exact integer arithmetic on doubled values (the median of integers is a multiple of 1/2):
     # the same median, spread and comparisons as in float64, without float copies of the image.
-    median2 = np.array([_doubled_median(colours[:, c], n) for c in range(3)], dtype=np.int64)  # [3]
-    dist4 = _doubled_sq_distance(colours, median2)  # [n] 4 x squared distance, exact
+    # One channel at a time: a boolean gather of [H, W] planes is ~10x faster than of [H, W, 3].
+    median2 = np.array([_doubled_median(rgb[..., c][on_table], n) for c in range(3)], dtype=np.int64)  # [3]
+    dist4_image = _doubled_sq_distance(rgb, median2)  # [H, W] 4 x squared distance, exact
+    dist4 = dist4_image[on_table]  # [n] the table pixels' (the same integers)
     middle = np.partition(dist4, [(n - 1) // 2, n // 2])  # the median's two middle ranks
     mad = (np.sqrt(middle[(n - 1) // 2] / 4.0) + np.sqrt(middle[n // 2] / 4.0)) / 2.0
     threshold = max(config.colour_distance, config.colour_spread_factor * 1.4826 * float(mad))
-    odd = (_doubled_sq_distance(rgb, median2) > 4.0 * threshold**2) & near_plane  # [H, W]
+    odd = (dist4_image > 4.0 * threshold**2) & near_plane  # [H, W]
     # colour alone is noisy at object borders and texture speckles: keep only solid regions
-    opened: BoolMask = ndimage.binary_opening(odd, structure=_EIGHT_CONNECTED)
-    return opened
+    return open_3x3(odd)
+
+
+def open_3x3(mask: BoolMask) -> BoolMask:
+    """``ndimage.binary_opening(mask, structure=np.ones((3, 3)))`` (outside the image counts as
+    background), as separable AND / OR of shifted slices: the same pixels, ~15x faster.
+
+    Erosion keeps a pixel whose 3x3 neighbourhood lies wholly inside the mask (never one on the
+    image border); dilation then marks every pixel within one step (8-connected) of a kept one.
+    """
+    eroded = np.zeros_like(mask)
+    rows = mask[:-2] & mask[1:-1] & mask[2:]  # [H-2, W]: vertical AND around rows 1..H-2
+    eroded[1:-1, 1:-1] = rows[:, :-2] & rows[:, 1:-1] & rows[:, 2:]
+    grown = eroded.copy()
+    grown[1:] |= eroded[:-1]
+    grown[:-1] |= eroded[1:]
+    out = grown.copy()
+    out[:, 1:] |= grown[:, :-1]
+    out[:, :-1] |= grown[:, 1:]
+    return out
 
 
 def _doubled_median(values: npt.NDArray[np.uint8], n: int) -> int:
@@ -91,10 +110,12 @@ def _doubled_median(values: npt.NDArray[np.uint8], n: int) -> int:
     return low + high
 
 
-def _doubled_sq_distance(rgb: npt.NDArray[np.uint8], median2: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
-    """``4 * |rgb - median|^2`` per pixel ``[...]``, exact in integers."""
-    d = 2 * rgb.astype(np.int32) - median2.astype(np.int32)  # [..., 3]
-    out: npt.NDArray[np.int64] = np.einsum("...c,...c->...", d, d).astype(np.int64)
+def _doubled_sq_distance(rgb: npt.NDArray[np.uint8], median2: npt.NDArray[np.int64]) -> npt.NDArray[np.int32]:
+    """``4 * |rgb - median|^2`` per pixel ``[...]``, exact in integers (at most 3 x 510^2, so
+    int32), by a 256-entry table per channel: three gathers and two adds per pixel."""
+    doubled = 2 * np.arange(256, dtype=np.int32)
+    tables = [(doubled - np.int32(m)) ** 2 for m in median2.tolist()]
+    out: npt.NDArray[np.int32] = tables[0][rgb[..., 0]] + tables[1][rgb[..., 1]] + tables[2][rgb[..., 2]]
     return out
 
 
@@ -105,10 +126,10 @@ def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentati
     plane = table_plane(obs, cfg, points)
     height = plane.distance(points)  # [H, W], NaN where depth is invalid
     valid = np.isfinite(height)
-    above = valid & (np.nan_to_num(height, nan=-1.0) > cfg.height_threshold)
+    h = np.nan_to_num(height, nan=-1.0)
+    above = valid & (h > cfg.height_threshold)
     foreground = above
     if cfg.colour_cue:
-        h = np.nan_to_num(height, nan=-1.0)
         on_table = valid & (np.abs(h) <= cfg.plane.inlier_threshold)
         near_plane = valid & (h >= -cfg.colour_max_below) & ~above
         foreground = above | _colour_foreground(obs.rgb, on_table, near_plane, cfg)
@@ -119,14 +140,17 @@ def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentati
     for index, box in enumerate(ndimage.find_objects(labels), start=1):
         if box is None or areas[index] < cfg.min_area or areas[index] > max_area:
             continue
-        rois.append(roi_from_mask(_filled(labels, index, box)))
+        mask, within = _filled(labels, index, box)
+        rois.append(roi_from_mask(mask, within=within))
     return Segmentation(rois=rois, plane=plane, height=height, foreground=foreground)
 
 
-def _filled(labels: npt.NDArray[np.int32], index: int, box: tuple[slice, slice]) -> BoolMask:
+def _filled(
+    labels: npt.NDArray[np.int32], index: int, box: tuple[slice, slice]
+) -> tuple[BoolMask, tuple[slice, slice]]:
     """Component ``index`` as a full-frame mask with its holes filled, computed on its bounding
     box padded by one pixel: a hole cannot reach outside the box, so this equals filling the
-    whole frame at a fraction of the cost."""
+    whole frame at a fraction of the cost. Also returns that padded box (it holds the mask)."""
     rows, cols = box
     h, w = labels.shape
     r0, r1 = max(rows.start - 1, 0), min(rows.stop + 1, h)
@@ -134,7 +158,7 @@ def _filled(labels: npt.NDArray[np.int32], index: int, box: tuple[slice, slice])
     crop = np.pad(labels[r0:r1, c0:c1] == index, 1)  # padding: the outside is never a hole
     mask = np.zeros(labels.shape, dtype=bool)
     mask[r0:r1, c0:c1] = ndimage.binary_fill_holes(crop)[1:-1, 1:-1]
-    return mask
+    return mask, (slice(r0, r1), slice(c0, c1))
 
 
 def segment_rois(obs: Observation, config: SegmentConfig | None = None) -> list[Region]:

@@ -332,12 +332,13 @@ def _with_poses(obs: Observation, rects: Sequence[Grasp2D]) -> list[GraspCandida
 
 def raw_candidates(
     scene: Scene, obs: Observation, rois: Sequence[Region], bodies: Sequence[int | None],
-    config: PipelineConfig,
+    config: PipelineConfig, *, fused: bool = False,
 ) -> list[list[GraspCandidate]]:
     """Grasp candidates of every ROI, best first, with their world poses.
 
     A grasp network runs once over the crop holding all the ROIs and each ROI takes the peaks
-    of the shared maps on its mask (``predict_grasps_rois``); the oracle is asked per body.
+    of the shared maps on its mask (``predict_grasps_rois``; ``fused``: its inference rewrite,
+    ``grasp.fused``); the oracle is asked per body.
     """
     if config.grasp == "oracle":
         return [[] if body is None else
@@ -347,7 +348,7 @@ def raw_candidates(
 
     rects = predict_grasps_rois(
         config.grasp, obs.rgb, obs.depth, [roi.mask for roi in rois], config.max_grasps,
-        intrinsics=obs.intrinsics, min_quality=config.min_quality,
+        intrinsics=obs.intrinsics, min_quality=config.min_quality, fused=fused,
     )
     return [_with_poses(obs, r) for r in rects]
 

@@ -144,6 +144,8 @@ class CR3Robot:
             if p.getJointInfo(self.body_id, j, physicsClientId=client)[2] != p.JOINT_FIXED
         ]
         self._lower, self._upper = self._limits()
+        self._limit_pairs = list(zip(self._lower.tolist(), self._upper.tolist(), strict=True))
+        self._arm_slots = [self.movable_joints.index(j) for j in self.arm_joints]  # IK's joint order
         self.chain: SerialChain = load_chain(urdf, TCP_LINK)
         self.gripper = ParallelGripper(
             client, self.body_id, {n: i for i, n in enumerate(names)}, step, gripper_config
@@ -221,21 +223,23 @@ class CR3Robot:
         quat = top_down_quat(yaw)
         q = self.joint_positions() if seed is None else np.asarray(seed, dtype=np.float64)
         current = [0.0] * len(self.movable_joints)
-        arm_slots = [self.movable_joints.index(j) for j in self.arm_joints]
+        arm_slots = self._arm_slots
+        target_list = target.tolist()
+        null_space = self._null_space(arm_slots)
         best: IKSolution | None = None
         for _ in range(self.config.ik_rounds):
-            for slot, value in zip(arm_slots, q, strict=True):
-                current[slot] = float(value)
+            for slot, value in zip(arm_slots, q.tolist(), strict=True):
+                current[slot] = value
             full = p.calculateInverseKinematics(
                 self.body_id,
                 self.tcp_link,
-                [float(v) for v in target],
+                target_list,
                 quat,
                 currentPositions=current,
                 maxNumIterations=100,
                 residualThreshold=1e-6,
                 physicsClientId=self.client,
-                **self._null_space(arm_slots),
+                **null_space,
             )
             q = self._into_limits(np.array([full[s] for s in arm_slots], dtype=np.float64))
             pose = self.forward(q)
@@ -269,14 +273,16 @@ class CR3Robot:
         }
 
     def _into_limits(self, q: FloatArray) -> FloatArray:
-        wrapped = q.copy()
-        for i in range(len(wrapped)):
+        """``q`` with each joint outside its limits shifted by +-2 pi where that lands inside
+        (Python floats: the same IEEE additions and comparisons as on numpy scalars, faster)."""
+        wrapped = q.tolist()
+        for i, (lower, upper) in enumerate(self._limit_pairs):
             for shift in (2 * math.pi, -2 * math.pi):
-                if not self._lower[i] <= wrapped[i] <= self._upper[i]:
+                if not lower <= wrapped[i] <= upper:
                     candidate = wrapped[i] + shift
-                    if self._lower[i] <= candidate <= self._upper[i]:
+                    if lower <= candidate <= upper:
                         wrapped[i] = candidate
-        return wrapped
+        return np.array(wrapped, dtype=np.float64)
 
     def plan_linear(self, start_q: FloatArray, target: Point3, yaw: float) -> list[IKSolution]:
         """IK waypoints every ``cartesian_step`` along the straight TCP line to ``target``.
