@@ -73,6 +73,8 @@ from .assets import object_catalog
 from .clearance import HeightMap, heights_around
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
+from .fingers import FingerGeometry as FingerGeometry
+from .fingers import finger_check as finger_check
 from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
 from .scene import Scene, SceneSpec
@@ -111,22 +113,6 @@ _PICK_FAILURES: dict[Outcome, Failure] = {
     Outcome.SLIP_DURING_TRANSPORT: Failure.SLIP_DURING_TRANSPORT,
     Outcome.OUTSIDE_DROP_ZONE: Failure.OUTSIDE_DROP_ZONE,
 }
-
-
-@dataclass(frozen=True)
-class FingerGeometry:
-    """The open hand seen from above (Franka hand; the executor always opens it fully)."""
-
-    half_opening: float = 0.04  # m from the grasp centre to each pad's inner face
-    clearance: float = 0.002  # m wanted between each pad and the object as the fingers descend
-    thickness: float = 0.012  # m of finger along the closing axis: a narrower gap takes no finger
-    pad_half_width: float = 0.01  # m of pad across the closing axis, each side of the axis
-    height_tolerance: float = 0.003  # m: surfaces this close to the finger tips are not squeezed
-    min_points: int = 4  # pixels, so single noisy depth pixels do not count as an object
-
-    @property
-    def max_span(self) -> float:
-        return 2 * (self.half_opening - self.clearance)
 
 
 @dataclass(frozen=True)
@@ -255,44 +241,6 @@ def majority_body(obs: Observation, mask: BoolMask, bodies: Sequence[int]) -> in
     counts = {b: int(np.count_nonzero(labels == b)) for b in bodies}
     best = max(counts, key=lambda b: (counts[b], -b), default=None)
     return best if best is not None and counts[best] > 0 else None
-
-
-def finger_check(
-    material: FloatArray, pose: TopDownGrasp, tip_z: float, fingers: FingerGeometry
-) -> tuple[bool, str]:
-    """Does the object fit between the open fingers at their height? (ok, why not)
-
-    ``material`` ``[m, 3]`` are the object's surface points (its ROI's depth pixels in the
-    world). Only surface above the finger tips ``tip_z`` is squeezed, so one finger may go inside
-    a cup for a rim grasp. Points within a pad-wide strip along the closing axis are projected on
-    it and split into runs where a gap is wide enough for a finger; the runs that reach between
-    the open pads are what the fingers close on. The grasp fits if their total span leaves the
-    clearance on both sides. The span, not the centring, decides: the two fingers close
-    symmetrically and push an off-centre object to the middle.
-
-    The span rule was checked against physics on label-free random scenes (GR-ConvNet's top-3
-    grasps of 70 targets, 115 picks): 85% of the grasps it kept succeeded, against 27% of those
-    it rejected, and it kept 87% of the grasps that succeeded.
-    """
-    axis = np.array([np.cos(pose.yaw), np.sin(pose.yaw)])
-    normal = np.array([-axis[1], axis[0]])
-    rel = material[:, :2] - np.asarray(pose.position[:2], dtype=np.float64)
-    squeezed = (np.abs(rel @ normal) <= fingers.pad_half_width) & (
-        material[:, 2] > tip_z + fingers.height_tolerance)
-    along = np.sort(rel[squeezed] @ axis)  # [k]
-    if along.size < fingers.min_points:
-        return False, "no object surface between the fingers at their height"
-    breaks = np.nonzero(np.diff(along) > fingers.thickness)[0]
-    lows = along[np.concatenate([[0], breaks + 1])]
-    highs = along[np.concatenate([breaks, [len(along) - 1]])]
-    between = (highs > -fingers.half_opening) & (lows < fingers.half_opening)  # runs the pads meet
-    if not np.any(between):
-        return False, "no object surface between the fingers at their height"
-    span = float(highs[between].max() - lows[between].min())
-    if span > fingers.max_span:
-        return False, (f"object section {span * 100:.1f} cm does not fit the "
-                       f"{fingers.max_span * 100:.1f} cm opening")
-    return True, ""
 
 
 def tip_height(pose: TopDownGrasp, pick: PickConfig, table_z: float) -> float:

@@ -30,15 +30,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from ..grasp.geometry import TopDownGrasp, wrap_half_pi
-
-if TYPE_CHECKING:
-    from .pipeline import FingerGeometry
+from .fingers import FingerGeometry, finger_check
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -131,8 +128,6 @@ def refine(
 ) -> TopDownGrasp | None:
     """The first of ``candidates`` the fingers fit around (``finger_check`` at its own tip
     height), or None. Call it for a grasp that does not fit: one that fits needs nothing."""
-    from .pipeline import finger_check
-
     if not cfg.enabled:
         return None
     for c in candidates(pose, material, tip_z_of, fingers, cfg):
