@@ -15,6 +15,7 @@ import numpy.typing as npt
 import pybullet as p
 import pytest
 
+from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.sim.clearance import ClearanceConfig, HandBox, HeightMap, arm_hits, hand_hits
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.gripper import GripperConfig
@@ -121,3 +122,60 @@ def test_clearance_boxes_cover_the_simulated_hand(hand: str) -> None:
     for corners in _link_boxes_in_tcp_frame(hand):
         for c in corners:
             assert any(_inside(c, b, 0.005) for b in boxes), (hand, np.round(c, 3))
+
+
+def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_the_check() -> None:
+    """The README demo (`cut`, seed 0): the robot's own path, once without and once with the check.
+
+    Without it, IK accepts the knife's best fitting grasp (and the hand later rests on the
+    cracker box); with it, the overhead depth shows the box under the hand and every fitting
+    grasp of the knife is refused, while a grasp elsewhere on the table stays allowed."""
+    import dataclasses
+
+    from craft_e.paths import SIM_DEV_LABELS
+    from craft_e.runtime.evaluation.sim_eval import load_sim_labels, make_episode_specs
+    from craft_e.runtime.perception.segment import segment
+    from craft_e.runtime.sim.choose import LazyROI, pick_reachable
+    from craft_e.runtime.sim.clearance import heights_around
+    from craft_e.runtime.sim.episode import plan_pick
+    from craft_e.runtime.sim.fingers import finger_check
+    from craft_e.runtime.sim.pipeline import (
+        PipelineConfig,
+        raw_candidates,
+        roi_points,
+        tip_height,
+        with_refinements,
+    )
+
+    spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
+    config = PipelineConfig()
+    on = dataclasses.replace(config.pick, clearance=ClearanceConfig(enabled=True))
+    with SimEnv() as env:
+        env.reset(spec.scene)
+        env.robot.reset_home()
+        obs = env.capture()
+        assert obs.seg is not None
+        rois = segment(obs).rois
+        knife = max(range(len(rois)), key=lambda i: int((rois[i].mask & (obs.seg == env.scene.target.body_id)).sum()))
+        table_z = env.scene.layout.table_z
+        world = obs.points_world()
+        raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+        raw = raw_candidates(env.scene, obs, [rois[knife]], [None], config)[0]
+        material = roi_points(world, raised, rois[knife])
+        fitting = [c for c in with_refinements(raw, material, obs, table_z, config) if c.pose is not None
+                   and finger_check(material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0]]
+        assert fitting
+        heights = heights_around(world, raised, rois[knife].mask, table_z, on.clearance)
+        assert heights is not None
+        assert plan_pick(env, fitting[0].pose, config.pick, heights) is None  # the check is off by default
+        assert plan_pick(env, fitting[0].pose, config.pick) is None  # IK alone accepts it
+        blocked = [plan_pick(env, c.pose, on, heights) for c in fitting if c.pose is not None]
+        assert all(why is not None and why.startswith("approach blocked") for why in blocked), blocked
+        # the robot's lazy path refuses them the same way
+        lazy = LazyROI((0.0, 0.0, 1.0, 1.0), np.zeros(4, np.float32), list(fitting), [c.quality for c in fitting], heights)
+        reachable = pick_reachable(env, dataclasses.replace(config, pick=on), [lazy])
+        assert not any(reachable(c) for c in fitting)
+        # an empty spot of the table, away from everything, stays clear
+        free = TopDownGrasp(position=np.array([0.45, -0.25, table_z + 0.02]), yaw=0.0, width_m=0.05)
+        assert heights.heights(free.position[None, :2], 0.12)[0] == table_z
+        assert plan_pick(env, free, on, heights) is None
