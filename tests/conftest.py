@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -21,6 +21,8 @@ import pytest
 if TYPE_CHECKING:
     from craft_e.compiler.build import BuildConfig
     from craft_e.compiler.sources.llm import LLMSource
+    from craft_e.runtime.sim.gripper import GripperConfig
+    from craft_e.runtime.sim.robot import CR3Robot
 
 # The package finds artifacts/ through configuration (craft_e.paths: $CRAFT_ARTIFACTS, default
 # ./artifacts); the suite pins it to this checkout's folder so pytest may run from any directory.
@@ -157,3 +159,31 @@ def kb_b2(
 def bundle_bytes(folder: Path) -> dict[str, bytes]:
     """Every file of a bundle folder by name."""
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def bare_robot() -> Iterator[Callable[..., CR3Robot]]:
+    """Make CR3 robots alone in their own pybullet clients (gravity on, no table or scene), for
+    tests of the arm and the hands; every client is closed when the module's tests are done."""
+    import pybullet as p
+
+    from craft_e.runtime.sim.robot import CR3Robot
+
+    clients: list[int] = []
+
+    def make(gripper_config: GripperConfig | None = None) -> CR3Robot:
+        client = p.connect(p.DIRECT)
+        clients.append(client)
+        p.setGravity(0, 0, -9.81, physicsClientId=client)
+
+        def step(n: int) -> None:
+            for _ in range(n):
+                p.stepSimulation(physicsClientId=client)
+
+        return CR3Robot(client, step, gripper_config=gripper_config)
+
+    try:
+        yield make
+    finally:
+        for client in clients:
+            p.disconnect(physicsClientId=client)

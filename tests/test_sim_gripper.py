@@ -9,7 +9,7 @@ cube. The Franka hand (the default) picks the same cube.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable
 
 import numpy as np
 import pybullet as p
@@ -27,18 +27,8 @@ EASY = SceneSpec("pour", "mustard_bottle", ("foam_brick", "knife", "apple", "sta
 
 
 @pytest.fixture(scope="module")
-def robot() -> Iterator[CR3Robot]:
-    client = p.connect(p.DIRECT)
-    p.setGravity(0, 0, -9.81, physicsClientId=client)
-
-    def step(n: int) -> None:
-        for _ in range(n):
-            p.stepSimulation(physicsClientId=client)
-
-    try:
-        yield CR3Robot(client, step, gripper_config=GripperConfig(hand="robotiq_2f85"))
-    finally:
-        p.disconnect(physicsClientId=client)
+def robot(bare_robot: Callable[..., CR3Robot]) -> CR3Robot:
+    return bare_robot(GripperConfig(hand="robotiq_2f85"))
 
 
 def _joint(robot: CR3Robot, name: str) -> tuple[float, float]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
+from collections.abc import Callable
 
 import numpy as np
 import pybullet as p
@@ -20,18 +20,8 @@ from craft_e.runtime.sim.robot_urdf import (
 
 
 @pytest.fixture(scope="module")
-def robot() -> Iterator[CR3Robot]:
-    client = p.connect(p.DIRECT)
-    p.setGravity(0, 0, -9.81, physicsClientId=client)
-
-    def step(n: int) -> None:
-        for _ in range(n):
-            p.stepSimulation(physicsClientId=client)
-
-    try:
-        yield CR3Robot(client, step)
-    finally:
-        p.disconnect(physicsClientId=client)
+def robot(bare_robot: Callable[..., CR3Robot]) -> CR3Robot:
+    return bare_robot()
 
 
 def test_composed_urdf_applies_the_fixes_and_leaves_shared_untouched() -> None:

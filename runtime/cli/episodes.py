@@ -29,6 +29,14 @@ TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.
 MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
 SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
 JobsOpt = Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical to --jobs 1).")]
+# the hand and the pick, shared by `craft eval sim` and `craft sim demo`
+GripperOpt = Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")]
+WristLookOpt = Annotated[bool, typer.Option(help="Re-centre each grasp from one wrist depth frame at "
+                                                 "pre-grasp (closed-loop correction).")]
+RefineGraspsOpt = Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
+                                                    "it onto a vessel's wall, when that fits (sim/refine.py).")]
+ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
+                                                 "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 
 
 class Report(Protocol):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import Annotated
 
@@ -31,26 +30,21 @@ def eval_sim(
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",
     jobs: ep.JobsOpt = 1,
-    gripper: Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")] = "panda",
-    wrist_look: Annotated[bool, typer.Option(help="Re-centre each grasp from one wrist depth frame at "
-                                                  "pre-grasp (closed-loop correction).")] = True,
-    refine_grasps: Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
-                                                     "it onto a vessel's wall, when that fits (sim/refine.py).")] = True,
-    clearance: Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
-                                                 "overhead depth shows (sim/clearance.py; off: too strict as a filter).")] = False,
+    gripper: ep.GripperOpt = "panda",
+    wrist_look: ep.WristLookOpt = True,
+    refine_grasps: ep.RefineGraspsOpt = True,
+    clearance: ep.ClearanceOpt = False,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
     from ..sim.assets import SharedAssetsMissingError
-    from ..sim.clearance import ClearanceConfig
     from ..sim.episode import sim_configs
     from ..sim.pipeline import PipelineConfig
     from ..sim.placement import PlacementError
     from ..sim.refine import RefineConfig
 
     try:
-        env_config, pick = sim_configs(gripper, wrist_look)
-        pick = dataclasses.replace(pick, clearance=ClearanceConfig(enabled=clearance))
+        env_config, pick = sim_configs(gripper, wrist_look, clearance)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick,

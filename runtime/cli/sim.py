@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 from typing import Annotated
 
 import typer
+
+from . import episodes as ep
 
 
 def demo(
@@ -22,13 +23,10 @@ def demo(
     rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
     gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
     threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 1,
-    gripper: Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")] = "panda",
-    wrist_look: Annotated[bool, typer.Option(help="Re-centre the grasp from one wrist depth frame at "
-                                                  "pre-grasp.")] = True,
-    refine_grasps: Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
-                                                     "it onto a vessel's wall, when that fits (sim/refine.py).")] = True,
-    clearance: Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
-                                                 "overhead depth shows (sim/clearance.py; off: too strict as a filter).")] = False,
+    gripper: ep.GripperOpt = "panda",
+    wrist_look: ep.WristLookOpt = True,
+    refine_grasps: ep.RefineGraspsOpt = True,
+    clearance: ep.ClearanceOpt = False,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -44,7 +42,6 @@ def demo(
     from ..grounding.grounder import normalize_verb_name
     from ..grounding.settings import GroundingSettings
     from ..kb.bundle import BundleError, load_bundle
-    from ..sim.clearance import ClearanceConfig
     from ..sim.env import SimEnv
     from ..sim.episode import sim_configs
     from ..sim.figures import FrameRecorder, describe, plot_episode
@@ -54,8 +51,7 @@ def demo(
     from .common import out as console
 
     try:
-        env_config, pick = sim_configs(gripper, wrist_look)
-        pick = dataclasses.replace(pick, clearance=ClearanceConfig(enabled=clearance))
+        env_config, pick = sim_configs(gripper, wrist_look, clearance)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
                                 pick=pick,
                                 refine=RefineConfig(enabled=refine_grasps))

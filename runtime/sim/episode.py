@@ -75,14 +75,16 @@ class PickConfig:
     obstacle_margin: float = 0.03
 
 
-def sim_configs(gripper: str, wrist_look: bool) -> tuple[EnvConfig, PickConfig]:
-    """The env and pick settings behind the CLIs' ``--gripper`` and ``--wrist-look``.
+def sim_configs(gripper: str, wrist_look: bool, clearance: bool = False) -> tuple[EnvConfig, PickConfig]:
+    """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look`` and
+    ``--clearance``.
 
     Raises ValueError for an unknown gripper (the message lists the choices).
     """
     spec = hand_spec(gripper)
     pick = PickConfig()
-    pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look))
+    pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look),
+                               clearance=dataclasses.replace(pick.clearance, enabled=clearance))
     return EnvConfig(gripper=GripperConfig(hand=spec.name)), pick
 
 
