@@ -1,0 +1,153 @@
+"""Newton IK on the chain model, for waypoints a short step from a known solution.
+
+A pick's plan is ~50 IK solutions, almost all of them waypoints 2 cm apart on straight TCP lines
+(``CR3Robot.plan_linear``), each seeded with the previous waypoint's joints. pybullet's
+``calculateInverseKinematics`` needs about two calls of its damped solver per waypoint (~1.2 ms
+with the check) and made the chosen grasp's IK plan the largest robot-side cost after the two
+networks (0.11 s/scene, ``benchmarks/bench_perception.py``).
+
+From a seed that close, plain Newton steps on the numpy model of the same URDF chain converge
+quadratically: two or three steps reach the pose to ~1e-10 m, at ~0.1 ms per waypoint. A 6-joint
+arm has isolated solutions, so from a nearby seed Newton finds the same posture pybullet's solver
+finds (to pybullet's own stopping tolerance, 1e-4 m), not another branch. Whatever does not
+converge quickly (a far seed, a pose out of reach, a singular Jacobian) returns None, and the
+caller falls back to pybullet, so the set of reachable poses does not shrink.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from .kinematics import SerialChain
+
+FloatArray = npt.NDArray[np.float64]
+_EYE3 = np.eye(3)
+
+
+@dataclass(frozen=True)
+class LocalIKConfig:
+    """When Newton steps are trusted; outside these the caller uses pybullet's solver."""
+
+    max_steps: int = 8
+    tolerance: float = 1e-6  # m and rad: the residual at which Newton has converged
+    max_seed_distance: float = 0.05  # m from the seed's TCP to the target: "a short step"
+    # rad between the seed's TCP rotation and the target's: a top-down grasp's closing axis is
+    # turned at most a quarter turn (``CR3Robot.nearest_yaw``), e.g. on the first waypoint of a
+    # transport to the drop zone
+    max_seed_angle: float = 1.7
+    max_joint_step: float = 1.7  # rad: a larger Newton step means a near-singular Jacobian
+
+
+class ChainIK:
+    """Forward kinematics, Jacobian and Newton IK of one revolute ``SerialChain``.
+
+    The fixed joints are folded into their neighbours once, and every joint's local transform is
+    built in one batched numpy expression, so a pose costs a handful of numpy calls (per-call
+    overhead, not arithmetic, is what costs on 4x4 matrices); ``pose`` agrees with
+    ``SerialChain.forward`` to float rounding (``tests/test_local_ik.py``).
+    """
+
+    def __init__(self, chain: SerialChain, config: LocalIKConfig | None = None) -> None:
+        self.config = config or LocalIKConfig()
+        origins: list[FloatArray] = []
+        axes: list[FloatArray] = []
+        pending = np.eye(4)
+        for joint in chain.joints:
+            pending = pending @ joint.origin
+            if not joint.movable:
+                continue
+            if joint.kind not in ("revolute", "continuous"):
+                raise ValueError(f"joint {joint.name} is {joint.kind}: local IK handles revolute joints only")
+            origins.append(pending)
+            axes.append(joint.axis / np.linalg.norm(joint.axis))
+            pending = np.eye(4)
+        self._origins = np.array(origins)  # [n, 4, 4]: fixed transform before each joint
+        self._axes = np.array(axes)  # [n, 3]: each joint's axis in its own frame
+        k = np.zeros((len(axes), 3, 3))
+        k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -self._axes[:, 2], self._axes[:, 1], -self._axes[:, 0]
+        k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = self._axes[:, 2], -self._axes[:, 1], self._axes[:, 0]
+        self._cross, self._cross2 = k, k @ k  # Rodrigues' formula, per joint
+        self._tail = pending  # fixed transform from the last joint to the end link
+
+    @property
+    def dof(self) -> int:
+        return len(self._axes)
+
+    def pose(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """End-link ``(rotation [3, 3], position [3])`` in the chain's root frame."""
+        end, _ = self._walk(q)
+        return end[:3, :3], end[:3, 3]
+
+    def _walk(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """End pose ``[4, 4]`` and each joint's frame ``[n, 4, 4]`` (after its motion, which
+        leaves the joint's origin and axis where they were)."""
+        angles = np.asarray(q, dtype=np.float64)[:, None, None]
+        motion = np.zeros_like(self._origins)
+        motion[:, :3, :3] = _EYE3 + np.sin(angles) * self._cross + (1.0 - np.cos(angles)) * self._cross2
+        motion[:, 3, 3] = 1.0
+        local = self._origins @ motion  # [n, 4, 4], one batched product
+        frames = np.empty_like(local)
+        pose = local[0]
+        frames[0] = pose
+        for i in range(1, len(local)):
+            pose = pose @ local[i]
+            frames[i] = pose
+        return pose @ self._tail, frames
+
+    def solve(
+        self, rotation: FloatArray, position: FloatArray, seed: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """Joints that put the end link at ``(rotation, position)`` (root frame), by Newton steps
+        from ``seed``, with the end link's rotation and position they reach; None if the seed is
+        not close or the steps do not converge."""
+        cfg = self.config
+        target = np.asarray(position, dtype=np.float64)
+        q = np.array(seed, dtype=np.float64)
+        for step in range(cfg.max_steps + 1):
+            end, frames = self._walk(q)
+            turn = rotation @ end[:3, :3].T
+            residual = np.concatenate([target - end[:3, 3], _orientation_error(turn)])
+            if step == 0 and (float(np.linalg.norm(residual[:3])) > cfg.max_seed_distance
+                              or _cos_angle(turn) < math.cos(cfg.max_seed_angle)):
+                return None
+            if float(np.abs(residual).max()) <= cfg.tolerance:
+                return (q, end[:3, :3], end[:3, 3]) if _cos_angle(turn) > 0.0 else None  # sin is 0 at pi too
+            if step == cfg.max_steps:
+                return None
+            axes = frames[:, :3, :3] @ self._axes[:, :, None]  # [n, 3, 1] in the root frame
+            lever = end[:3, 3, None] - frames[:, :3, 3, None]  # [n, 3, 1]
+            jacobian = np.empty((6, len(axes)))
+            jacobian[0] = axes[:, 1, 0] * lever[:, 2, 0] - axes[:, 2, 0] * lever[:, 1, 0]  # axis x lever
+            jacobian[1] = axes[:, 2, 0] * lever[:, 0, 0] - axes[:, 0, 0] * lever[:, 2, 0]
+            jacobian[2] = axes[:, 0, 0] * lever[:, 1, 0] - axes[:, 1, 0] * lever[:, 0, 0]
+            jacobian[3:] = axes[:, :, 0].T
+            try:
+                delta = np.linalg.solve(jacobian, residual)
+            except np.linalg.LinAlgError:
+                return None
+            if float(np.abs(delta).max()) > cfg.max_joint_step:
+                return None
+            q = q + delta
+        return None
+
+
+def _orientation_error(rotation: FloatArray) -> FloatArray:
+    """Rotation vector (axis times angle) of ``rotation``, the orientation residual Newton drives
+    to zero. Near the identity, where Newton spends its steps, ``sin(angle) * axis`` (the skew
+    part) equals it to first order and costs a fraction of the logarithm."""
+    r = rotation.tolist()
+    skew = np.array([r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]]) * 0.5
+    cosine = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0)
+    if cosine > 0.999:
+        return skew
+    sine = float(np.linalg.norm(skew))
+    return skew * (math.atan2(sine, cosine) / sine) if sine > 1e-12 else skew
+
+
+def _cos_angle(rotation: FloatArray) -> float:
+    """Cosine of ``rotation``'s angle, which tells a small angle from one near pi."""
+    return 0.5 * (float(np.trace(rotation)) - 1.0)

@@ -1,0 +1,98 @@
+"""Newton IK for seeded waypoints (``sim.local_ik``) replaces pybullet's solver where it applies.
+
+Why these tests: the pick's plan decides which grasps are reachable and the joints the arm follows.
+The Newton solver is only a faster way to the same answers, so it must (1) use the same kinematic
+model as the checks, (2) land on the posture pybullet's solver lands on from the same seed, not on
+another branch, (3) refuse what it cannot do (far seeds, flipped orientations), leaving those to
+pybullet, and (4) give the same reachability answers on whole plans.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from craft_e.runtime.sim.gripper import GripperConfig
+from craft_e.runtime.sim.kinematics import load_chain
+from craft_e.runtime.sim.local_ik import ChainIK
+from craft_e.runtime.sim.robot import HOME_Q, CR3Robot, top_down_rotation
+from craft_e.runtime.sim.robot_urdf import TCP_LINK, robot_urdf_path
+
+
+@pytest.mark.parametrize("hand", ["panda", "robotiq_2f85"])
+def test_pose_matches_the_chain_model(hand: str) -> None:
+    chain = load_chain(robot_urdf_path(hand), TCP_LINK)
+    ik = ChainIK(chain)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q = rng.uniform(-math.pi, math.pi, size=6)
+        rotation, position = ik.pose(q)
+        reference = chain.forward(q)
+        assert np.allclose(rotation, reference[:3, :3], atol=1e-12)
+        assert np.allclose(position, reference[:3, 3], atol=1e-12)
+
+
+def _pybullet_only(robot: CR3Robot) -> CR3Robot:
+    robot.config = dataclasses.replace(robot.config, ik_local=False)
+    return robot
+
+
+def test_newton_reaches_the_pose_pybullet_reaches_from_the_same_seed(
+    bare_robot: Callable[..., CR3Robot],
+) -> None:
+    local, reference = bare_robot(), _pybullet_only(bare_robot())
+    rng = np.random.default_rng(1)
+    newton_answers = 0
+    for _ in range(40):
+        seed_position = np.array([rng.uniform(0.25, 0.5), rng.uniform(-0.3, 0.3), rng.uniform(0.05, 0.3)])
+        yaw = float(rng.uniform(-math.pi / 2, math.pi / 2))
+        seed = reference.solve_ik(seed_position, yaw)
+        if not seed.ok(reference.config):
+            continue
+        target = seed_position + rng.normal(scale=0.01, size=3)
+        turned = yaw + float(rng.normal(scale=0.2))
+        assert local._solve_local(target, top_down_rotation(turned), seed.q) is not None
+        newton_answers += 1
+        ours, theirs = local.solve_ik(target, turned, seed=seed.q), reference.solve_ik(target, turned, seed=seed.q)
+        assert ours.ok(local.config) and theirs.ok(reference.config)
+        assert ours.position_error < 1e-6 and ours.angle_error < 1e-5
+        assert ours.position_error <= theirs.position_error + 1e-9
+        # The same posture, not another branch (elbow or wrist flipped: ~1 rad or more). pybullet
+        # accepts answers up to its tolerances (mm), where the elbow joints may be off by 0.06.
+        assert float(np.abs(ours.q - theirs.q).max()) < 0.1
+    assert newton_answers >= 30
+
+
+def test_newton_declines_far_seeds_and_flipped_orientations() -> None:
+    ik = ChainIK(load_chain(robot_urdf_path(GripperConfig().hand), TCP_LINK))
+    rotation, position = ik.pose(HOME_Q)
+    assert ik.solve(rotation, position + np.array([0.2, 0.0, 0.0]), HOME_Q) is None  # 20 cm away
+    flipped = rotation @ np.diag([-1.0, 1.0, -1.0])  # a half turn: sin(angle) is 0 there too
+    assert ik.solve(flipped, position, HOME_Q) is None
+    found = ik.solve(rotation, position + np.array([0.01, -0.01, 0.005]), HOME_Q)
+    assert found is not None
+    q, reached_rotation, reached = found
+    assert np.allclose(reached, position + np.array([0.01, -0.01, 0.005]), atol=1e-6)
+    assert np.allclose(ik.pose(q)[1], reached, atol=1e-12)
+    assert np.allclose(reached_rotation, rotation, atol=1e-6)
+
+
+def test_straight_line_plans_agree_with_pybullet(bare_robot: Callable[..., CR3Robot]) -> None:
+    """Every waypoint of lines across the workspace (the moves of a pick: descents, lifts, a
+    transport to the drop zone with a quarter turn of the wrist) is reachable with Newton exactly
+    when it is with pybullet, in the same posture."""
+    local, reference = bare_robot(), _pybullet_only(bare_robot())
+    start = reference.solve_ik((0.4, 0.0, 0.2), 0.0)
+    assert start.ok(reference.config)
+    lines = [((0.4, 0.0, 0.05), 0.0), ((0.3, 0.25, 0.2), 0.3), ((0.02, -0.4, 0.17), math.pi / 2),
+             ((0.55, 0.2, 0.1), -0.8)]
+    for goal, yaw in lines:
+        ours, theirs = local.plan_linear(start.q, goal, yaw), reference.plan_linear(start.q, goal, yaw)
+        assert len(ours) == len(theirs)
+        assert [s.ok(local.config) for s in ours] == [s.ok(reference.config) for s in theirs]
+        assert float(np.abs(ours[-1].q - theirs[-1].q).max()) < 0.1
+        assert max(s.position_error for s in ours) < 1e-6
