@@ -130,3 +130,38 @@ def test_one_pass_serves_several_rois() -> None:
     for mask, grasps in zip(scene.masks, per_roi, strict=True):
         assert grasps and grasps == frame.grasps_in(mask, 3, 0.05)
         assert all(mask[round(g.center_xy[1]), round(g.center_xy[0])] for g in grasps)
+
+
+def test_peaks_in_a_mask_equal_the_peaks_of_the_zeroed_map() -> None:
+    """``find_peaks_in_mask`` works on the mask's box plus a margin only; its peaks must be the
+    full computation's exactly (order included), also for masks at the map's border, thin masks,
+    masks in several pieces and plateaus of equal values."""
+    from scipy import ndimage
+
+    from craft_e.runtime.grasp.postprocess import find_peaks, find_peaks_in_mask
+
+    rng = np.random.default_rng(7)
+    compared = found = 0
+    for trial in range(300):
+        shape = (int(rng.integers(40, 160)), int(rng.integers(40, 160)))
+        image = ndimage.gaussian_filter(rng.random(shape), float(rng.uniform(1.0, 6.0)))
+        image = (image - image.min()) / (image.max() - image.min() + 1e-12)
+        if trial % 5 == 0:
+            image = np.round(image * 4) / 4  # plateaus: equal neighbours to thin
+        mask = np.zeros(shape, dtype=bool)
+        for _ in range(int(rng.integers(1, 3))):
+            r, c = int(rng.integers(0, shape[0])), int(rng.integers(0, shape[1]))
+            h, w = int(rng.integers(1, shape[0] // 2 + 2)), int(rng.integers(1, shape[1] // 2 + 2))
+            mask[max(r - h, 0): r + h, max(c - w, 0): c + w] = True
+        min_distance = int(rng.choice([1, 3, 8, 20]))
+        threshold = float(rng.uniform(0.0, 0.6))
+        for border in (True, False):
+            full = find_peaks(np.where(mask, image, 0.0), min_distance, threshold, num_peaks=10,
+                              exclude_border=border)
+            cropped = find_peaks_in_mask(image, mask, min_distance, threshold, num_peaks=10,
+                                         exclude_border=border)
+            assert np.array_equal(full, cropped), (trial, border)
+            compared += 1
+            found += len(full)
+    assert compared == 600 and found > 300
+    assert find_peaks_in_mask(np.ones((10, 10)), np.zeros((10, 10), dtype=bool)).shape == (0, 2)

@@ -61,6 +61,43 @@ def find_peaks(
     (Chebyshev) are thinned greedily.
     """
     img = np.asarray(image, dtype=np.float64)
+    return _peaks_of(img, img.shape, (0, 0), min_distance, threshold, num_peaks, exclude_border)
+
+
+def find_peaks_in_mask(
+    image: npt.NDArray[np.floating[npt.NBitBase]] | Float32Array,
+    mask: BoolArray,
+    min_distance: int = 20,
+    threshold: float = 0.2,
+    num_peaks: int | None = None,
+    exclude_border: bool = True,
+) -> IntArray:
+    """``find_peaks`` of ``image`` zeroed outside ``mask``, computed on the mask's bounding box
+    plus ``min_distance`` only.
+
+    Exactly the same peaks (``tests/test_grasp_frame.py``): every pixel of the box sees its whole
+    maximum window inside the crop, or the image border the full computation sees too; pixels
+    of the margin are zero and never above the threshold; row-major order and the border rule
+    are kept in full-image coordinates. The robot's one grasp-network pass covers every ROI, so
+    this saves a full-window maximum filter per ROI.
+    """
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return np.zeros((0, 2), dtype=np.intp)
+    height, width = mask.shape
+    r0, r1 = max(int(rows[0]) - min_distance, 0), min(int(rows[-1]) + min_distance + 1, height)
+    c0, c1 = max(int(cols[0]) - min_distance, 0), min(int(cols[-1]) + min_distance + 1, width)
+    crop = np.where(mask[r0:r1, c0:c1], np.asarray(image[r0:r1, c0:c1], dtype=np.float64), 0.0)
+    return _peaks_of(crop, (height, width), (r0, c0), min_distance, threshold, num_peaks, exclude_border)
+
+
+def _peaks_of(
+    img: npt.NDArray[np.float64], full_shape: tuple[int, ...], origin: tuple[int, int], min_distance: int,
+    threshold: float, num_peaks: int | None, exclude_border: bool,
+) -> IntArray:
+    """``find_peaks`` on ``img``, a crop at ``origin`` of an image of ``full_shape``; peaks in
+    full-image coordinates."""
     size = 2 * min_distance + 1
     local_max = ndimage.maximum_filter(img, size=size, mode="nearest")
     peaks = img == local_max
@@ -68,12 +105,12 @@ def find_peaks(
         return np.zeros((0, 2), dtype=np.intp)
     peaks &= img > threshold
     if exclude_border and min_distance > 0:
-        b = min_distance
-        peaks[:b] = False
-        peaks[-b:] = False
-        peaks[:, :b] = False
-        peaks[:, -b:] = False
-    coords = np.argwhere(peaks)  # [N, 2] row-major order
+        b, (r0, c0) = min_distance, origin
+        peaks[: max(b - r0, 0)] = False
+        peaks[max(full_shape[0] - b - r0, 0):] = False
+        peaks[:, : max(b - c0, 0)] = False
+        peaks[:, max(full_shape[1] - b - c0, 0):] = False
+    coords = np.argwhere(peaks) + np.array(origin, dtype=np.intp)  # [N, 2] row-major order
     order = np.argsort(img[peaks], kind="stable")[::-1]
     chosen: list[npt.NDArray[np.intp]] = []
     for rc in coords[order]:
@@ -101,9 +138,11 @@ def detect_grasps(
     if mask is not None:
         if mask.shape != q.shape:
             raise ValueError(f"mask shape {mask.shape} differs from map shape {q.shape}")
-        q = np.where(mask, q, np.float32(0.0))
+        peaks = find_peaks_in_mask(q, mask, min_distance, min_quality, num_peaks=max_grasps)
+    else:
+        peaks = find_peaks(q, min_distance, min_quality, num_peaks=max_grasps)
     grasps: list[Grasp2D] = []
-    for row, col in find_peaks(q, min_distance, min_quality, num_peaks=max_grasps):
+    for row, col in peaks:
         width = max(float(maps.width_px[row, col]), 0.0)
         grasps.append(
             Grasp2D(
