@@ -138,13 +138,11 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
     from craft_e.runtime.sim.choose import LazyROI, pick_reachable
     from craft_e.runtime.sim.clearance import heights_around
     from craft_e.runtime.sim.episode import plan_pick
-    from craft_e.runtime.sim.fingers import finger_check
     from craft_e.runtime.sim.pipeline import (
         PipelineConfig,
+        fitting_with_refinements,
         raw_candidates,
         roi_points,
-        tip_height,
-        with_refinements,
     )
 
     spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
@@ -162,8 +160,7 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
         raw = raw_candidates(env.scene, obs, [rois[knife]], [None], config)[0]
         material = roi_points(world, raised, rois[knife])
-        fitting = [c for c in with_refinements(raw, material, obs, table_z, config) if c.pose is not None
-                   and finger_check(material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0]]
+        fitting = fitting_with_refinements(raw, material, obs, table_z, config)
         assert fitting
         heights = heights_around(world, raised, rois[knife].mask, table_z, on.clearance)
         assert heights is not None

@@ -112,12 +112,10 @@ def perceive_for_pick(
     from .clearance import heights_around
     from .pipeline import (
         _stage,
-        finger_check,
+        fitting_with_refinements,
         raw_candidates,
         roi_points,
-        tip_height,
         torch_threads,
-        with_refinements,
     )
 
     if config.grasp == "oracle" or config.rois == "oracle":
@@ -140,9 +138,7 @@ def perceive_for_pick(
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
         for i, roi in enumerate(rois):
             material = roi_points(world, raised, roi)  # [m, 3]
-            expanded = with_refinements(raw[i], material, obs, table_z, config)
-            fitting = [c for c in expanded if c.pose is not None and (not config.fit_filter or finger_check(
-                material, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0])]
+            fitting = fitting_with_refinements(raw[i], material, obs, table_z, config)
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
                                list(fitting), [c.quality for c in fitting],

@@ -14,6 +14,7 @@ import numpy.typing as npt
 from ..grasp.geometry import TopDownGrasp
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True)
@@ -32,30 +33,87 @@ class FingerGeometry:
         return 2 * (self.half_opening - self.clearance)
 
 
+class SurfacePoints:
+    """An object's surface points and the per-centre work of finger checks, done once.
+
+    Grasp refinement checks up to ~20 grasps on one ROI, most of them turns about one centre,
+    and its wall search projects the same points again; a one-off ``finger_check`` gathered the
+    points' x, y relative to the centre through a two-wide strided array (~0.5 ms on a 25k-point
+    ROI, most of a check). Here those offsets, the strips and the height masks are kept per
+    centre, axis and height. Every value is computed by the same numpy operation on the same
+    numbers as the one-off check did (the offsets' rows, ``@`` on a C-ordered ``[m, 2]`` array,
+    the same sort), so every answer is bit-for-bit the same.
+    """
+
+    def __init__(self, material: FloatArray) -> None:
+        self.material = material  # [m, 3] world
+        self.z = np.ascontiguousarray(material[:, 2])  # [m]
+        # keyed by the exact bits of centres and axes: 0.0 and -0.0 are one float key, but
+        # x - 0.0 and x - -0.0 differ in the sign of a zero
+        self._rel: dict[bytes, FloatArray] = {}
+        self._strip: dict[tuple[bytes, bytes, float], BoolArray] = {}
+        self._above: dict[float, BoolArray] = {}
+
+    def rel(self, centre_xy: FloatArray) -> FloatArray:
+        """``material[:, :2] - centre_xy`` ``[m, 2]`` (C order; ``centre_xy`` float64 ``[2]``),
+        one column at a time: ~10x faster than through the two-wide strided slice."""
+        key = centre_xy.tobytes()
+        if key not in self._rel:
+            out = np.empty((len(self.material), 2), dtype=np.float64)
+            np.subtract(self.material[:, 0], centre_xy[0], out=out[:, 0])
+            np.subtract(self.material[:, 1], centre_xy[1], out=out[:, 1])
+            self._rel[key] = out
+        return self._rel[key]
+
+    def strip(self, centre_xy: FloatArray, normal: FloatArray, half_width: float) -> BoolArray:
+        """``[m]`` points within ``half_width`` of the line through ``centre_xy`` across ``normal``."""
+        key = (centre_xy.tobytes(), normal.tobytes(), half_width)
+        if key not in self._strip:
+            self._strip[key] = np.abs(self.rel(centre_xy) @ normal) <= half_width
+        return self._strip[key]
+
+    def above(self, z: float) -> BoolArray:
+        """``[m]`` points higher than ``z``."""
+        if z not in self._above:
+            self._above[z] = self.z > z
+        return self._above[z]
+
+    def along(self, centre_xy: FloatArray, chosen: BoolArray, axis: FloatArray) -> FloatArray:
+        """``[k]`` the ``chosen`` points' coordinates along ``axis`` from ``centre_xy``, in order."""
+        return self.rel(centre_xy).take(np.flatnonzero(chosen), axis=0) @ axis
+
+
+def surface_of(material: FloatArray | SurfacePoints) -> SurfacePoints:
+    """``material`` as ``SurfacePoints`` (a new one for a bare ``[m, 3]`` array): callers that
+    check many grasps on one ROI pass one ``SurfacePoints`` so that they share its work."""
+    return material if isinstance(material, SurfacePoints) else SurfacePoints(material)
+
 
 def finger_check(
-    material: FloatArray, pose: TopDownGrasp, tip_z: float, fingers: FingerGeometry
+    material: FloatArray | SurfacePoints, pose: TopDownGrasp, tip_z: float, fingers: FingerGeometry
 ) -> tuple[bool, str]:
     """Does the object fit between the open fingers at their height? (ok, why not)
 
     ``material`` ``[m, 3]`` are the object's surface points (its ROI's depth pixels in the
-    world). Only surface above the finger tips ``tip_z`` is squeezed, so one finger may go inside
-    a cup for a rim grasp. Points within a pad-wide strip along the closing axis are projected on
-    it and split into runs where a gap is wide enough for a finger; the runs that reach between
-    the open pads are what the fingers close on. The grasp fits if their total span leaves the
-    clearance on both sides. The span, not the centring, decides: the two fingers close
-    symmetrically and push an off-centre object to the middle.
+    world), bare or as ``SurfacePoints`` shared between checks. Only surface above the finger
+    tips ``tip_z`` is squeezed, so one finger may go inside a cup for a rim grasp. Points within
+    a pad-wide strip along the closing axis are projected on it and split into runs where a gap is
+    wide enough for a finger; the runs that reach between the open pads are what the fingers
+    close on. The grasp fits if their total span leaves the clearance on both sides. The span, not
+    the centring, decides: the two fingers close symmetrically and push an off-centre object to
+    the middle.
 
     The span rule was checked against physics on label-free random scenes (GR-ConvNet's top-3
     grasps of 70 targets, 115 picks): 85% of the grasps it kept succeeded, against 27% of those
     it rejected, and it kept 87% of the grasps that succeeded.
     """
+    surface = surface_of(material)
     axis = np.array([np.cos(pose.yaw), np.sin(pose.yaw)])
     normal = np.array([-axis[1], axis[0]])
-    rel = material[:, :2] - np.asarray(pose.position[:2], dtype=np.float64)
-    squeezed = (np.abs(rel @ normal) <= fingers.pad_half_width) & (
-        material[:, 2] > tip_z + fingers.height_tolerance)
-    along = np.sort(rel[squeezed] @ axis)  # [k]
+    centre = np.asarray(pose.position[:2], dtype=np.float64)
+    squeezed = surface.strip(centre, normal, fingers.pad_half_width) & surface.above(
+        tip_z + fingers.height_tolerance)
+    along = np.sort(surface.along(centre, squeezed, axis))  # [k]
     if along.size < fingers.min_points:
         return False, "no object surface between the fingers at their height"
     breaks = np.nonzero(np.diff(along) > fingers.thickness)[0]

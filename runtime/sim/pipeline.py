@@ -74,6 +74,7 @@ from .clearance import HeightMap, heights_around
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
 from .fingers import FingerGeometry as FingerGeometry
+from .fingers import SurfacePoints
 from .fingers import finger_check as finger_check
 from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
@@ -307,21 +308,59 @@ def with_refinements(
 ) -> list[GraspCandidate]:
     """``candidates`` with, right after each one the fingers do not fit around, its refinement
     (``refine.refine``: turned, or moved onto a wall) if one fits. Both the evaluation's path and
-    the robot's use this one list, so they check the same grasps in the same order."""
+    the robot's (``fitting_with_refinements``) use this one list, so they check the same grasps in
+    the same order."""
+    return [c for c, _ in _refined(candidates, SurfacePoints(material), obs, table_z, config)]
+
+
+def fitting_with_refinements(
+    candidates: Sequence[GraspCandidate], material: FloatArray, obs: Observation, table_z: float,
+    config: PipelineConfig,
+) -> list[GraspCandidate]:
+    """The grasps of ``with_refinements`` that have a pose and that the fingers fit around
+    (every one with a pose when ``config.fit_filter`` is off), in order: the robot's list.
+
+    Each grasp is checked once, on one ``SurfacePoints``: a network grasp's check is the one that
+    decided whether to refine it, and a refinement fits by construction (``refine`` returns only
+    grasps ``finger_check`` accepts at the same tip height)."""
+    surface = SurfacePoints(material)
+
+    def fits(c: GraspCandidate, known: bool | None) -> bool:
+        if c.pose is None:
+            return False
+        if not config.fit_filter:
+            return True
+        if known is not None:
+            return known
+        return finger_check(surface, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0]
+
+    return [c for c, known in _refined(candidates, surface, obs, table_z, config) if fits(c, known)]
+
+
+def _refined(
+    candidates: Sequence[GraspCandidate], surface: SurfacePoints, obs: Observation, table_z: float,
+    config: PipelineConfig,
+) -> list[tuple[GraspCandidate, bool | None]]:
+    """``with_refinements``' list, each grasp with whether the fingers fit around it, or None
+    where that was not checked (refinement off, or no pose)."""
     from .refine import refine
 
     if not (config.refine.enabled and config.fit_filter):
-        return list(candidates)
+        return [(c, None) for c in candidates]
 
     def tip_z_of(pose: TopDownGrasp) -> float:
         return tip_height(pose, config.pick, table_z)
 
-    out: list[GraspCandidate] = []
+    out: list[tuple[GraspCandidate, bool | None]] = []
     for c in candidates:
-        out.append(c)
-        if c.pose is None or finger_check(material, c.pose, tip_z_of(c.pose), config.fingers)[0]:
+        if c.pose is None:
+            out.append((c, None))
             continue
-        better = refine(c.pose, material, tip_z_of, config.fingers, config.refine)
+        fits = finger_check(surface, c.pose, tip_z_of(c.pose), config.fingers)[0]
+        out.append((c, fits))
+        if fits:
+            continue
+        better = refine(c.pose, surface, tip_z_of, config.fingers, config.refine)
         if better is None:
             continue
         try:
@@ -329,7 +368,7 @@ def with_refinements(
                                 length_px=c.rect.length_px)
         except ValueError:
             continue
-        out.append(GraspCandidate(rect, better))
+        out.append((GraspCandidate(rect, better), True))
     return out
 
 

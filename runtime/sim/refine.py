@@ -35,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..grasp.geometry import TopDownGrasp, wrap_half_pi
-from .fingers import FingerGeometry, finger_check
+from .fingers import FingerGeometry, SurfacePoints, finger_check, surface_of
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -69,8 +69,8 @@ def turns(cfg: RefineConfig) -> list[float]:
 
 
 def wall_runs(
-    material: FloatArray, centre_xy: FloatArray, yaw: float, tip_z_of: Callable[[TopDownGrasp], float],
-    fingers: FingerGeometry,
+    material: FloatArray | SurfacePoints, centre_xy: FloatArray, yaw: float,
+    tip_z_of: Callable[[TopDownGrasp], float], fingers: FingerGeometry,
 ) -> list[tuple[float, float, float]]:
     """Runs of surface along the closing axis through ``centre_xy``: ``(low, high, top_z)`` in
     metres along the axis from the centre, split where a gap is wide enough for a finger.
@@ -78,20 +78,20 @@ def wall_runs(
     Only points within the pad strip count, and only those above the finger tips of a grasp
     taken at the strip's highest point (a rim grasp inserts from the rim's top, so a vessel's
     floor lies below the tips and shows as the gap between its walls)."""
+    surface = surface_of(material)
     axis = np.array([math.cos(yaw), math.sin(yaw)])
     normal = np.array([-axis[1], axis[0]])
-    rel = material[:, :2] - centre_xy
-    in_strip = np.abs(rel @ normal) <= fingers.pad_half_width
+    in_strip = surface.strip(centre_xy, normal, fingers.pad_half_width)
     if np.count_nonzero(in_strip) < fingers.min_points:
         return []
-    crest = float(material[in_strip, 2].max())
+    crest = float(surface.z[in_strip].max())
     tip_z = tip_z_of(TopDownGrasp(position=np.array([centre_xy[0], centre_xy[1], crest]), yaw=yaw, width_m=0.0))
-    strip = in_strip & (material[:, 2] > tip_z + fingers.height_tolerance)
-    along = rel[strip] @ axis  # [k]
+    strip = in_strip & surface.above(tip_z + fingers.height_tolerance)
+    along = surface.along(centre_xy, strip, axis)  # [k]
     if along.size < fingers.min_points:
         return []
     order = np.argsort(along, kind="stable")
-    along, heights = along[order], material[strip][order, 2]
+    along, heights = along[order], surface.z[strip][order]
     breaks = np.nonzero(np.diff(along) > fingers.thickness)[0]
     starts = np.concatenate([[0], breaks + 1])
     ends = np.concatenate([breaks + 1, [along.size]])
@@ -100,11 +100,12 @@ def wall_runs(
 
 
 def candidates(
-    pose: TopDownGrasp, material: FloatArray, tip_z_of: Callable[[TopDownGrasp], float],
+    pose: TopDownGrasp, material: FloatArray | SurfacePoints, tip_z_of: Callable[[TopDownGrasp], float],
     fingers: FingerGeometry, cfg: RefineConfig,
 ) -> Iterator[TopDownGrasp]:
     """Turned grasps about the same centre (smallest turn first), then wall-centred ones (nearest
     wall first, at each turn in the same order); unchecked."""
+    surface = surface_of(material)
     centre = np.asarray(pose.position, dtype=np.float64)
     offsets = turns(cfg)
     for delta in offsets[1:]:
@@ -112,7 +113,7 @@ def candidates(
     for delta in offsets:
         yaw = wrap_half_pi(pose.yaw + delta)
         axis = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-        runs = wall_runs(material, centre[:2], yaw, tip_z_of, fingers)
+        runs = wall_runs(surface, centre[:2], yaw, tip_z_of, fingers)
         for low, high, top in sorted(runs, key=lambda r: abs(r[0] + r[1])):
             mid = (low + high) / 2
             if not 0 < abs(mid) <= cfg.max_shift or high - low > fingers.max_span:
@@ -123,14 +124,18 @@ def candidates(
 
 
 def refine(
-    pose: TopDownGrasp, material: FloatArray, tip_z_of: Callable[[TopDownGrasp], float],
+    pose: TopDownGrasp, material: FloatArray | SurfacePoints, tip_z_of: Callable[[TopDownGrasp], float],
     fingers: FingerGeometry, cfg: RefineConfig,
 ) -> TopDownGrasp | None:
     """The first of ``candidates`` the fingers fit around (``finger_check`` at its own tip
-    height), or None. Call it for a grasp that does not fit: one that fits needs nothing."""
+    height), or None. Call it for a grasp that does not fit: one that fits needs nothing.
+
+    The candidates share one ``SurfacePoints`` (pass the caller's to share its work too): the
+    turns and the walls about the network's centre reuse its offsets and strips."""
     if not cfg.enabled:
         return None
-    for c in candidates(pose, material, tip_z_of, fingers, cfg):
-        if finger_check(material, c, tip_z_of(c), fingers)[0]:
+    surface = surface_of(material)
+    for c in candidates(pose, surface, tip_z_of, fingers, cfg):
+        if finger_check(surface, c, tip_z_of(c), fingers)[0]:
             return c
     return None
