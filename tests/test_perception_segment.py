@@ -43,6 +43,36 @@ def test_plane_fit_recovers_a_tilted_plane_despite_clutter() -> None:
     assert abs(abs(float(plane.normal @ normal)) - 1.0) < 1e-3
 
 
+def test_preemptive_plane_scoring_keeps_the_plane_of_the_full_count() -> None:
+    """Candidates are first counted on a probe and only the 10 best counted on every sample
+    (``PlaneFitConfig.preemptive_keep``): on tables with clutter, box tops (a second, smaller
+    plane) and noise, with and without subsampling, the plane must be the one the full count
+    of all 200 candidates gives."""
+    from dataclasses import replace
+
+    from craft_e.runtime.perception.plane import PlaneFitConfig
+
+    rng = np.random.default_rng(3)
+    exhaustive = replace(PlaneFitConfig(), preemptive_keep=0)
+    for trial in range(12):
+        n_table = int(rng.choice([3000, 15000, 40000]))
+        xy = rng.uniform(-0.3, 0.3, (n_table, 2))
+        tilt = np.array([rng.normal(0, 0.1), rng.normal(0, 0.1), 1.0])
+        normal = tilt / np.linalg.norm(tilt)
+        z = (0.6 * normal[2] - xy @ normal[:2]) / normal[2] + rng.normal(0, 0.0008, n_table)
+        box_top = np.column_stack([rng.uniform(0.0, 0.1, (n_table // 3, 2)), np.full(n_table // 3, 0.45)])
+        clutter = np.column_stack([rng.uniform(-0.3, 0.3, (n_table // 4, 2)),
+                                   rng.uniform(0.3, 0.55, n_table // 4)])
+        holes = np.full((n_table // 20, 3), np.nan)
+        points = np.vstack([np.column_stack([xy, z]), box_top, clutter, holes])[rng.permutation(
+            n_table + n_table // 3 + n_table // 4 + n_table // 20)]
+        fast, fast_inliers = fit_plane(points)
+        full, full_inliers = fit_plane(points, exhaustive)
+        assert fast_inliers == full_inliers, trial
+        assert np.array_equal(fast.normal, full.normal) and fast.offset == full.offset, trial
+        assert abs(abs(float(fast.normal @ normal)) - 1.0) < 1e-3  # and it is the table
+
+
 def test_colour_cue_recovers_an_object_too_flat_for_the_depth_threshold() -> None:
     height = np.zeros((120, 160))
     rgb = np.broadcast_to(np.array(TABLE_RGB, np.uint8), (120, 160, 3)).copy()
