@@ -117,3 +117,26 @@ def test_robotiq_picks_a_cube_at_a_known_pose() -> None:
 
 def test_default_panda_hand_picks_the_cube() -> None:
     assert _cube_pick("panda") is Outcome.SUCCESS
+
+
+def test_each_hand_brings_its_own_finger_geometry_to_the_grasp_checks() -> None:
+    """The finger check and grasp refinement must model the hand that will close: with
+    ``--gripper robotiq_2f85`` the pads open to its 85 mm stroke and are 22 mm wide (the URDF's
+    pad box), not the Franka hand's 80 mm and 20 mm."""
+    import xml.etree.ElementTree as ET
+
+    from craft_e.runtime.sim.assets import shared_path
+    from craft_e.runtime.sim.episode import sim_configs
+    from craft_e.runtime.sim.fingers import FingerGeometry
+    from craft_e.runtime.sim.hands import HANDS
+    from craft_e.runtime.sim.robot_urdf import ROBOTIQ_URDF
+
+    _, _, franka = sim_configs("panda", wrist_look=True)
+    _, _, robotiq = sim_configs("robotiq_2f85", wrist_look=True)
+    assert franka == FingerGeometry()
+    for spec, fingers in ((HANDS["panda"], franka), (HANDS["robotiq_2f85"], robotiq)):
+        assert fingers is spec.fingers
+        assert abs(2 * fingers.half_opening - spec.stroke) < 1e-9
+    pad = ET.parse(shared_path(ROBOTIQ_URDF)).getroot().find("link[@name='left_inner_finger_pad']/collision/geometry/box")
+    assert pad is not None
+    assert abs(2 * robotiq.pad_half_width - float(pad.attrib["size"].split()[0])) < 1e-9

@@ -44,10 +44,10 @@ def eval_sim(
     from ..sim.refine import RefineConfig
 
     try:
-        env_config, pick = sim_configs(gripper, wrist_look, clearance)
+        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
-                                pick=pick,
+                                pick=pick, fingers=fingers,
                                 refine=RefineConfig(enabled=refine_grasps))
     except ValueError as exc:
         fail(str(exc))

@@ -51,9 +51,9 @@ def demo(
     from .common import out as console
 
     try:
-        env_config, pick = sim_configs(gripper, wrist_look, clearance)
+        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
-                                pick=pick,
+                                pick=pick, fingers=fingers,
                                 refine=RefineConfig(enabled=refine_grasps))
         all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:

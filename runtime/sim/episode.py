@@ -25,6 +25,7 @@ import pybullet as p
 from ..grasp.geometry import TopDownGrasp
 from .clearance import ClearanceConfig, HeightMap, arm_hits, hand_hits
 from .env import EnvConfig, SimEnv
+from .fingers import FingerGeometry
 from .gripper import GripperConfig
 from .hands import hand_spec
 from .robot import CR3Robot, IKSolution
@@ -75,9 +76,11 @@ class PickConfig:
     obstacle_margin: float = 0.03
 
 
-def sim_configs(gripper: str, wrist_look: bool, clearance: bool = False) -> tuple[EnvConfig, PickConfig]:
+def sim_configs(
+    gripper: str, wrist_look: bool, clearance: bool = False
+) -> tuple[EnvConfig, PickConfig, FingerGeometry]:
     """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look`` and
-    ``--clearance``.
+    ``--clearance``, and the hand's finger geometry for the grasp checks (``PipelineConfig.fingers``).
 
     Raises ValueError for an unknown gripper (the message lists the choices).
     """
@@ -85,7 +88,7 @@ def sim_configs(gripper: str, wrist_look: bool, clearance: bool = False) -> tupl
     pick = PickConfig()
     pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look),
                                clearance=dataclasses.replace(pick.clearance, enabled=clearance))
-    return EnvConfig(gripper=GripperConfig(hand=spec.name)), pick
+    return EnvConfig(gripper=GripperConfig(hand=spec.name)), pick, spec.fingers
 
 
 @dataclass(frozen=True)

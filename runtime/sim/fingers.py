@@ -19,7 +19,8 @@ BoolArray = npt.NDArray[np.bool_]
 
 @dataclass(frozen=True)
 class FingerGeometry:
-    """The open hand seen from above (Franka hand; the executor always opens it fully)."""
+    """The open hand seen from above (defaults: the Franka hand; ``HandSpec.fingers`` has each
+    hand's; the executor always opens the hand fully)."""
 
     half_opening: float = 0.04  # m from the grasp centre to each pad's inner face
     clearance: float = 0.002  # m wanted between each pad and the object as the fingers descend

@@ -23,10 +23,11 @@ real linkage does; hence the TCP is defined at the closed tips.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 from .clearance import HandBox
+from .fingers import FingerGeometry
 
 HandName = Literal["robotiq_2f85", "panda"]
 HAND_NAMES: tuple[str, ...] = get_args(HandName)
@@ -75,6 +76,9 @@ class HandSpec:
     # The open hand in the TCP frame for the depth clearance check (``clearance.py``); measured
     # from the model's link boxes, re-measured by ``tests/test_clearance.py``.
     clearance_boxes: tuple[HandBox, ...] = ()
+    # The open hand seen from above, for the finger check and grasp refinement (``fingers.py``):
+    # what fits between these pads is what this hand can close on.
+    fingers: FingerGeometry = field(default_factory=FingerGeometry)
 
 
 ROBOTIQ_2F85 = HandSpec(
@@ -107,6 +111,8 @@ ROBOTIQ_2F85 = HandSpec(
         HandBox(0.022, 0.005, 0.058, 0.037, 0.096, mirrored=True),  # inner knuckles, over the object
         HandBox(0.016, 0.042, 0.076, 0.001, 0.107, mirrored=True),  # fingers and pads
     ),
+    # 85 mm stroke (pads 42.5 mm from the centre when open); pads 22 mm wide (the URDF's pad box)
+    fingers=FingerGeometry(half_opening=0.0425, pad_half_width=0.011),
 )
 
 PANDA = HandSpec(
