@@ -7,11 +7,13 @@ with the check) and made the chosen grasp's IK plan the largest robot-side cost 
 networks (0.11 s/scene, ``benchmarks/bench_perception.py``).
 
 From a seed that close, plain Newton steps on the numpy model of the same URDF chain converge
-quadratically: two or three steps reach the pose to ~1e-10 m, at ~0.1 ms per waypoint. A 6-joint
-arm has isolated solutions, so from a nearby seed Newton finds the same posture pybullet's solver
-finds (to pybullet's own stopping tolerance, 1e-4 m), not another branch. Whatever does not
-converge quickly (a far seed, a pose out of reach, a singular Jacobian) returns None, and the
-caller falls back to pybullet, so the set of reachable poses does not shrink.
+quadratically: two steps usually reach the pose to 1e-6 m / 1e-6 rad, at ~0.4 ms per waypoint
+(numpy call overhead on small matrices, not arithmetic). A 6-joint arm has isolated solutions, so
+from a nearby seed Newton finds the posture pybullet's solver finds (which stops anywhere within
+its tolerance, up to millimetres, so the joints agree to a few hundredths of a radian), not
+another branch (``tests/test_local_ik.py``). Whatever Newton does not solve quickly and well (a
+far seed, a pose out of reach, a singular Jacobian, an answer outside the joint limits) returns
+None, and the caller runs pybullet's solver, so the set of reachable poses does not shrink.
 """
 
 from __future__ import annotations
