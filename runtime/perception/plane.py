@@ -108,7 +108,8 @@ def _preempted(triples: npt.NDArray[np.intp], sample: FloatArray, cfg: PlaneFitC
     fair probe (the probe's count estimates a candidate's share to ~1 %). The probe's planes are
     built in one vectorised pass; the kept ones are rebuilt by ``_plane_through`` and counted
     exactly on all the samples, so the chosen plane is one the full count would choose among them
-    (on 53 dev frames: the same plane, bit for bit, as counting all 200)."""
+    (on all 105 dev frames the same plane, bit for bit, as counting all 200:
+    ``benchmarks/plane_preemption.py``)."""
     keep = cfg.preemptive_keep
     if keep <= 0 or len(triples) <= keep or cfg.preemptive_points >= len(sample):
         return triples
