@@ -2,13 +2,13 @@
 
 A pick's plan is ~50 IK solutions, almost all of them waypoints 2 cm apart on straight TCP lines
 (``CR3Robot.plan_linear``), each seeded with the previous waypoint's joints. pybullet's
-``calculateInverseKinematics`` needs about two calls of its damped solver per waypoint (~1.2 ms
-with the check) and made the chosen grasp's IK plan the largest robot-side cost after the two
-networks (0.11 s/scene, ``benchmarks/bench_perception.py``).
+``calculateInverseKinematics`` needs about two calls of its damped solver per waypoint and made
+the chosen grasp's IK plan the largest robot-side cost after the two networks (0.11 s/scene,
+``benchmarks/bench_perception.py``; 0.03 s with Newton).
 
 From a seed that close, plain Newton steps on the numpy model of the same URDF chain converge
-quadratically: two steps usually reach the pose to 1e-6 m / 1e-6 rad, at ~0.4 ms per waypoint
-(numpy call overhead on small matrices, not arithmetic). A 6-joint arm has isolated solutions, so
+quadratically: two steps usually reach the pose to 1e-6 m / 1e-6 rad; what a waypoint costs is
+mostly numpy's per-call overhead on small matrices, not arithmetic. A 6-joint arm has isolated solutions, so
 from a nearby seed Newton finds the posture pybullet's solver finds (which stops anywhere within
 its tolerance, up to millimetres, so the joints agree to a few hundredths of a radian), not
 another branch (``tests/test_local_ik.py``). Whatever Newton does not solve quickly and well (a

@@ -217,7 +217,7 @@ class CR3Robot:
         """Top-down IK for the TCP at ``position`` with closing axis ``yaw``.
 
         An explicit ``seed`` close to the target (a waypoint of a straight-line move) is solved by
-        Newton steps on the chain model (``local_ik``, ~10x cheaper; ``ArmConfig.ik_local``);
+        Newton steps on the chain model (``local_ik``, a plan ~3x cheaper; ``ArmConfig.ik_local``);
         otherwise, or if Newton does not converge, pybullet's solver takes damped steps from the
         seed, and re-seeding with its own answer for a few rounds converges to < 1 mm wherever
         the pose is reachable. By default the joint limits
@@ -329,9 +329,11 @@ class CR3Robot:
             solutions.append(solution)
             # Newton IK's next seed continues the last step (the joints move smoothly along a
             # line): it starts closer and needs one step fewer, converging to the same posture.
-            step = solution.q - solutions[-2].q if len(solutions) > 1 else None
-            smooth = step is not None and self.config.ik_local and float(np.abs(step).max()) < 0.2
-            seed = solution.q + step if smooth and step is not None else solution.q
+            seed = solution.q
+            if self.config.ik_local and len(solutions) > 1:
+                step = solution.q - solutions[-2].q
+                if float(np.abs(step).max()) < 0.2:
+                    seed = solution.q + step
         return solutions
 
     # ---------------------------------------------------------------- motion
