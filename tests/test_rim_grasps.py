@@ -106,3 +106,25 @@ def test_rim_grasps_of_a_plate_but_not_of_a_closed_cylinder() -> None:
     plate = rim_grasps(top_points(plate_height), cfg, table_z=0.0)
     assert plate and all(0.09 <= math.hypot(g.position[0], g.position[1]) <= 0.12 for g in plate)
     assert rim_grasps(top_points(solid_height), cfg, table_z=0.0) == []
+
+
+def narrow_cup_height(x: FloatArray, y: FloatArray) -> FloatArray:
+    """A 5.8 cm cup, 8 cm tall: 4 mm walls around a 5 cm mouth, a 5 mm floor inside."""
+    r = np.hypot(x, y)
+    return np.where(r > 0.029, 0.0, np.where(r >= 0.025, 0.08, 0.005))
+
+
+def test_a_finger_that_would_land_on_the_far_rim_is_rejected() -> None:
+    """A rim grasp on a narrow cup puts the inner finger on the far rim (dev: mugs' fingers
+    stopped 1-4 cm above the grasp); the span rule alone accepted it, the landing rule does not.
+    Taking the same cup whole, or a wide bowl by its rim, lands nothing and stays accepted."""
+    material = surface(narrow_cup_height)
+    tip_z = 0.08 - 0.03 - 0.0136  # the executor inserts 3 cm below the rim
+    rim = TopDownGrasp(np.array([0.027, 0.0, 0.08]), 0.0, 0.02)
+    assert finger_check(material, rim, tip_z, FingerGeometry(check_landing=False))[0]
+    ok, why = finger_check(material, rim, tip_z, FingerGeometry())
+    assert not ok and why == "a finger would land on the object beside the opening"
+    whole = TopDownGrasp(np.array([0.0, 0.0, 0.005]), 0.0, 0.06)
+    assert finger_check(material, whole, TIP_Z, FingerGeometry()) == (True, "")
+    bowl_rim = TopDownGrasp(np.array([0.068, 0.0, 0.055]), 0.0, 0.02)
+    assert finger_check(surface(bowl_height), bowl_rim, TIP_Z, FingerGeometry()) == (True, "")

@@ -92,10 +92,10 @@ def test_every_command_is_wired_and_answers_help() -> None:
     assert parse_box(" 1, 2,3,4 ") == (1.0, 2.0, 3.0, 4.0)
     expected = {"ground", "install", "rollback", "installed", "serve",
                 "eval/imagenet", "eval/sim", "eval/static", "eval/zhu", "eval/kb", "eval/open-world", "eval/recognition",
-                "eval/robustness/imagenet", "sim/demo"}
+                "eval/robustness/imagenet", "sim/demo", "sim/collision-meshes"}
     assert _commands(app) == expected
     for path in expected:
         r = runner.invoke(app, [*path.split("/"), "--help"])
         assert r.exit_code == 0, (path, r.output)
-    assert _commands(eval_app) >= {"imagenet", "robustness/imagenet"} and _commands(sim_app) == {"demo"}
+    assert _commands(eval_app) >= {"imagenet", "robustness/imagenet"} and _commands(sim_app) == {"demo", "collision-meshes"}
     _ = DEV_LABELS

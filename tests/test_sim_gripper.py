@@ -135,7 +135,7 @@ def test_each_hand_brings_its_own_finger_geometry_to_the_grasp_checks() -> None:
     _, _, robotiq = sim_configs("robotiq_2f85", wrist_look=True)
     assert franka == FingerGeometry()
     for spec, fingers in ((HANDS["panda"], franka), (HANDS["robotiq_2f85"], robotiq)):
-        assert fingers is spec.fingers
+        assert fingers == spec.fingers
         assert abs(2 * fingers.half_opening - spec.stroke) < 1e-9
     pad = ET.parse(shared_path(ROBOTIQ_URDF)).getroot().find("link[@name='left_inner_finger_pad']/collision/geometry/box")
     assert pad is not None

@@ -35,6 +35,13 @@ WristLookOpt = Annotated[bool, typer.Option(help="Re-centre each grasp from one 
                                                  "pre-grasp (closed-loop correction).")]
 RefineGraspsOpt = Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
                                                     "it onto a vessel's wall, when that fits (sim/refine.py).")]
+FineCollisionOpt = Annotated[bool, typer.Option(
+    "--fine-collision/--shipped-collision",
+    help="Objects whose shipped convex hulls fill an opening (a mug's mouth) collide through finer meshes "
+         "(sim/collision_meshes.py); --shipped-collision reproduces runs from before.")]
+LandingCheckOpt = Annotated[bool, typer.Option(
+    help="Reject grasps whose open finger would come down on the object's own surface beside the opening "
+         "(a mug's far rim or handle; sim/fingers.py).")]
 ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
                                                  "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 

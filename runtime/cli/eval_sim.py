@@ -34,6 +34,8 @@ def eval_sim(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     clearance: ep.ClearanceOpt = False,
+    fine_collision: ep.FineCollisionOpt = True,
+    landing_check: ep.LandingCheckOpt = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -44,7 +46,8 @@ def eval_sim(
     from ..sim.refine import RefineConfig
 
     try:
-        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance)
+        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
+                                                 landing_check)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers,

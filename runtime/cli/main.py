@@ -54,6 +54,7 @@ eval_app.command("open-world")(eval_open_world.eval_open_world)
 eval_app.command("recognition")(eval_recognition.eval_recognition)
 robustness_app.command("imagenet")(robustness.robustness_imagenet)
 sim_app.command("demo")(sim.demo)
+sim_app.command("collision-meshes")(sim.collision_meshes)
 
 
 def main() -> None:

@@ -27,6 +27,8 @@ def demo(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     clearance: ep.ClearanceOpt = False,
+    fine_collision: ep.FineCollisionOpt = True,
+    landing_check: ep.LandingCheckOpt = True,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -51,7 +53,8 @@ def demo(
     from .common import out as console
 
     try:
-        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance)
+        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
+                                                 landing_check)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
                                 pick=pick, fingers=fingers,
                                 refine=RefineConfig(enabled=refine_grasps))
@@ -99,3 +102,32 @@ def demo(
     (out / f"{stem}.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     console.print(describe(result, method, gripper=gripper), highlight=False, markup=False, soft_wrap=True)
     err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False, markup=False)
+
+
+def collision_meshes(
+    out: Annotated[Path | None, typer.Option(help="Folder to write (default: the package's own "
+                                                  "runtime/sim/collision, which scenes load).")] = None,
+) -> None:
+    """Rebuild the finer collision meshes of YCB objects whose shipped hulls fill an opening.
+
+    Runs V-HACD on every YCB asset's visual mesh (~2 min), keeps those whose shipped hulls hold
+    >= 1.3x the volume, and writes them with manifest.json (every asset's ratio). The output is
+    deterministic: a rebuild of the shipped folder changes no byte.
+    """
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.collision_meshes import (
+        COLLISION_DIR,
+        MIN_VOLUME_RATIO,
+        CollisionMeshError,
+        build_collision_meshes,
+    )
+    from .common import fail, note
+
+    target = out or COLLISION_DIR
+    try:
+        manifest = build_collision_meshes(target, progress=lambda a: note(f"decomposing {a}"))
+    except (SharedAssetsMissingError, CollisionMeshError) as exc:
+        fail(str(exc))
+    used = sorted(a for a, e in manifest["assets"].items() if e["used"])
+    note(f"wrote {target}: {len(used)} of {len(manifest['assets'])} YCB assets get finer meshes "
+         f"(shipped/fine hull volume >= {MIN_VOLUME_RATIO}): {', '.join(used)}")

@@ -168,15 +168,17 @@ class EpisodeSpec:
 
 
 @cache
-def asset_footprint(asset_id: str) -> Footprint:
+def asset_footprint(asset_id: str, fine_collision: bool = True) -> Footprint:
     """An asset's object-frame x-y footprint, measured exactly as ``make_scene`` measures it
     (loaded unrotated at the origin, base AABB), in a private pybullet client."""
     import pybullet as p
 
+    from ..sim.collision_meshes import sim_urdf
+
     asset = object_asset(asset_id)
     client = p.connect(p.DIRECT)
     try:
-        body = p.loadURDF(str(asset.urdf_path), basePosition=[0.0, 0.0, 0.0],
+        body = p.loadURDF(str(sim_urdf(asset, fine_collision)), basePosition=[0.0, 0.0, 0.0],
                           globalScaling=asset.scale, physicsClientId=client)
         lo, hi = p.getAABB(body, -1, physicsClientId=client)
     finally:
@@ -185,12 +187,14 @@ def asset_footprint(asset_id: str) -> Footprint:
                      half_size=((hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2))
 
 
-def placeable(assets: Sequence[str], scene_seed: int, placement: PlacementConfig) -> bool:
+def placeable(assets: Sequence[str], scene_seed: int, placement: PlacementConfig,
+              fine_collision: bool = True) -> bool:
     """Whether ``make_scene`` will find a layout for these assets with this seed (within
     ``CHECK_RESTARTS`` restarts)."""
     quick = dataclasses.replace(placement, restarts=min(placement.restarts, CHECK_RESTARTS))
     try:
-        sample_layout([asset_footprint(a) for a in assets], np.random.default_rng(scene_seed), quick)
+        sample_layout([asset_footprint(a, fine_collision) for a in assets], np.random.default_rng(scene_seed),
+                      quick)
     except PlacementError:
         return False
     return True
@@ -264,7 +268,7 @@ def make_episode_specs(
                                       "distinct non-affording objects for distractors (need 4)")
                 scene_seed = int(rng.integers(2**31 - 1))
                 scene = SceneSpec(pair.verb, target, tuple(distractors), scene_seed)
-                if placeable(scene.assets, scene_seed, place) and (
+                if placeable(scene.assets, scene_seed, place, env_cfg.physics.fine_collision) and (
                     min_gap is None or settled_apart(scene, env_cfg, min_gap)
                 ):
                     break
@@ -536,7 +540,7 @@ def evaluate_sim(
         "labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
         "layouts": layouts, "max_pairs": max_pairs, "pairs": len({(s.verb, s.object) for s in specs}),
         "episodes": len(specs), "verbs": len({s.verb for s in specs}), "distractors": DISTRACTORS,
-        "pipeline": cfg.to_dict(), "gripper": env_cfg.gripper.hand, "wrist_look": cfg.pick.wrist.enabled,
+        "pipeline": cfg.to_dict(), "gripper": env_cfg.gripper.hand, "fine_collision": env_cfg.physics.fine_collision, "wrist_look": cfg.pick.wrist.enabled,
         "image_encoder": enc.id, "vocabulary_size": len(sim_vocabulary()),
         "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
     }

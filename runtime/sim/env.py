@@ -31,6 +31,9 @@ class PhysicsConfig:
     time_step: float = 1.0 / 240.0
     solver_iterations: int = 100
     gravity: float = -9.81
+    # Objects whose shipped convex hulls fill an opening (a mug's mouth) collide through the
+    # finer meshes of ``collision_meshes``; False loads every asset's shipped hulls.
+    fine_collision: bool = True
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,8 @@ class SimEnv:
         self._robot = CR3Robot(
             self.client, self.step, config=arm, gripper_config=self.config.gripper
         )
-        self._scene = make_scene(spec, self.client, self.config.layout, self.config.camera)
+        self._scene = make_scene(spec, self.client, self.config.layout, self.config.camera,
+                                 fine_collision=self.config.physics.fine_collision)
         return self._scene
 
     def capture(self) -> Observation:

@@ -24,7 +24,7 @@ import pybullet as p
 
 from ..grasp.geometry import TopDownGrasp
 from .clearance import ClearanceConfig, HeightMap, arm_hits, hand_hits
-from .env import EnvConfig, SimEnv
+from .env import EnvConfig, PhysicsConfig, SimEnv
 from .fingers import FingerGeometry
 from .gripper import GripperConfig
 from .hands import hand_spec
@@ -77,10 +77,12 @@ class PickConfig:
 
 
 def sim_configs(
-    gripper: str, wrist_look: bool, clearance: bool = False
+    gripper: str, wrist_look: bool, clearance: bool = False, fine_collision: bool = True,
+    landing_check: bool = True,
 ) -> tuple[EnvConfig, PickConfig, FingerGeometry]:
-    """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look`` and
-    ``--clearance``, and the hand's finger geometry for the grasp checks (``PipelineConfig.fingers``).
+    """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look``, ``--clearance``
+    and ``--fine-collision``, and the hand's finger geometry for the grasp checks
+    (``PipelineConfig.fingers``; ``--landing-check``).
 
     Raises ValueError for an unknown gripper (the message lists the choices).
     """
@@ -88,7 +90,8 @@ def sim_configs(
     pick = PickConfig()
     pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look),
                                clearance=dataclasses.replace(pick.clearance, enabled=clearance))
-    return EnvConfig(gripper=GripperConfig(hand=spec.name)), pick, spec.fingers
+    env = EnvConfig(gripper=GripperConfig(hand=spec.name), physics=PhysicsConfig(fine_collision=fine_collision))
+    return env, pick, dataclasses.replace(spec.fingers, check_landing=landing_check)
 
 
 @dataclass(frozen=True)

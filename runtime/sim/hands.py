@@ -111,8 +111,10 @@ ROBOTIQ_2F85 = HandSpec(
         HandBox(0.022, 0.005, 0.058, 0.037, 0.096, mirrored=True),  # inner knuckles, over the object
         HandBox(0.016, 0.042, 0.076, 0.001, 0.107, mirrored=True),  # fingers and pads
     ),
-    # 85 mm stroke (pads 42.5 mm from the centre when open); pads 22 mm wide (the URDF's pad box)
-    fingers=FingerGeometry(half_opening=0.0425, pad_half_width=0.011),
+    # 85 mm stroke (pads 42.5 mm from the centre when open); pads 22 mm wide (the URDF's pad box);
+    # the finger's footprint is the "fingers and pads" box above (out to 7.6 cm, 3.2 cm wide)
+    fingers=FingerGeometry(half_opening=0.0425, pad_half_width=0.011, finger_half_width=0.016,
+                           finger_depth=0.0335),
 )
 
 PANDA = HandSpec(

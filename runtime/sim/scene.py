@@ -18,6 +18,7 @@ import pybullet as p
 from ..perception.observation import Observation
 from .assets import object_asset
 from .camera import Camera, render
+from .collision_meshes import sim_urdf
 from .placement import (
     Footprint,
     PlacementConfig,
@@ -177,12 +178,12 @@ def build_table(client: int, layout: TableLayout) -> tuple[int, int]:
 
 
 def _load_object(
-    client: int, asset_id: str, surface: SurfaceModel
+    client: int, asset_id: str, surface: SurfaceModel, fine_collision: bool = True
 ) -> tuple[int, FloatArray, FloatArray]:
     """Load at the origin, unrotated, to read the object-frame AABB; returns (id, min, max)."""
     asset = object_asset(asset_id)
     body = p.loadURDF(
-        str(asset.urdf_path),
+        str(sim_urdf(asset, fine_collision)),
         basePosition=[0.0, 0.0, 0.0],
         globalScaling=asset.scale,
         physicsClientId=client,
@@ -205,15 +206,18 @@ def make_scene(
     client: int,
     layout: TableLayout | None = None,
     camera: Camera | None = None,
+    *,
+    fine_collision: bool = True,
 ) -> Scene:
     """Build the table and the spec's objects in ``client`` and let them settle.
 
     The client should be freshly reset (``SimEnv.reset`` does this): body ids and the physics
-    state, hence the poses, then depend only on the spec.
+    state, hence the poses, then depend only on the spec. ``fine_collision``: see
+    ``PhysicsConfig.fine_collision``.
     """
     layout = layout or TableLayout()
     table, marker = build_table(client, layout)
-    loaded = [_load_object(client, a, layout.surface) for a in spec.assets]
+    loaded = [_load_object(client, a, layout.surface, fine_collision) for a in spec.assets]
     footprints = [
         Footprint(
             center=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2),
