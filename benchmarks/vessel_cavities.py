@@ -4,6 +4,9 @@ For each open vessel (bowls, mugs, cup, plate, pitcher) alone on the table: the 
 and the lowest surface within 2 cm of its centre as the rendered depth image shows it (visual
 mesh) and as vertical rays on the collision shape find it (what the fingers meet in physics).
 A rim grasp puts one finger inside; it can only work where the collision floor is low too.
+The last two columns count, of 30 x 30 vertical rays over the asset's box, those that reach its
+lowest 30 % with the shipped hulls and with the collision the testbed loads
+(``collision_meshes.rays_reaching_low``: the whole mouth, not only its centre).
 
 Run: ``.venv/bin/python benchmarks/vessel_cavities.py``.
 """
@@ -13,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from craft_e.runtime.sim.assets import object_catalog
+from craft_e.runtime.sim.collision_meshes import rays_reaching_low
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.oracle import top_surface_points
 from craft_e.runtime.sim.scene import SceneSpec
@@ -27,7 +31,8 @@ def _floor(points: np.ndarray, centre: np.ndarray, table_z: float) -> float:
 
 
 def main() -> None:
-    print("| asset | rim (cm) | floor seen by the camera (cm) | floor in physics (cm) |\n|---|---:|---:|---:|")
+    print("| asset | rim (cm) | floor seen by the camera (cm) | floor in physics (cm) | rays low, shipped hulls "
+          "| rays low, loaded |\n|---|---:|---:|---:|---:|---:|")
     for asset_id, asset in sorted(object_catalog().items()):
         if asset.name not in VESSELS:
             continue
@@ -41,7 +46,8 @@ def main() -> None:
             centre = rays[:, :2].mean(axis=0)
 
             print(f"| {asset_id} | {100 * (rays[:, 2].max() - table_z):.1f} | "
-                  f"{100 * _floor(seen, centre, table_z):.1f} | {100 * _floor(rays, centre, table_z):.1f} |")
+                  f"{100 * _floor(seen, centre, table_z):.1f} | {100 * _floor(rays, centre, table_z):.1f} | "
+                  f"{rays_reaching_low(asset, False)} | {rays_reaching_low(asset, True)} |")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from craft_e.runtime.sim.collision_meshes import (
     fine_mesh,
     hulls_volume,
     obj_parts,
+    rays_reaching_low,
     shipped_manifest,
     shipped_parts,
     sim_urdf,
@@ -73,27 +75,11 @@ def test_decomposition_is_deterministic_and_reproduces_the_shipped_file(tmp_path
     assert a.read_bytes() == b.read_bytes() == (COLLISION_DIR / "a_cups.obj").read_bytes()
 
 
-def _rays_reaching_low(asset_id: str, fine: bool) -> int:
-    """Vertical rays over the asset's box that hit it in its lowest 30 %."""
-    client = p.connect(p.DIRECT)
-    try:
-        body = p.loadURDF(str(sim_urdf(object_asset(asset_id), fine)), physicsClientId=client)
-        lo, hi = p.getAABB(body, -1, physicsClientId=client)
-        xs, ys = np.meshgrid(np.linspace(lo[0], hi[0], 30), np.linspace(lo[1], hi[1], 30))
-        starts = [[x, y, hi[2] + 0.05] for x, y in zip(xs.ravel(), ys.ravel(), strict=True)]
-        ends = [[x, y, lo[2] - 0.01] for x, y in zip(xs.ravel(), ys.ravel(), strict=True)]
-        hits = p.rayTestBatch(starts, ends, physicsClientId=client)
-        low = lo[2] + 0.3 * (hi[2] - lo[2])
-        return sum(1 for h in hits if h[0] == body and h[3][2] < low)
-    finally:
-        p.disconnect(physicsClientId=client)
-
-
 @pytest.mark.parametrize(("asset_id", "shipped_at_most", "fine_at_least"),
                          [("mug", 5, 40), ("bowl", 5, 200), ("a_cups", 30, 120)])
 def test_the_openings_are_open_to_physics(asset_id: str, shipped_at_most: int, fine_at_least: int) -> None:
-    assert _rays_reaching_low(asset_id, fine=False) <= shipped_at_most  # stopped by a lid of hulls
-    assert _rays_reaching_low(asset_id, fine=True) >= fine_at_least  # down to the floor inside
+    assert rays_reaching_low(object_asset(asset_id), fine_collision=False) <= shipped_at_most  # stopped by a lid of hulls
+    assert rays_reaching_low(object_asset(asset_id), fine_collision=True) >= fine_at_least  # down to the floor inside
 
 
 def test_the_derived_urdf_keeps_visual_and_mass() -> None:
@@ -122,3 +108,59 @@ def test_a_listed_mesh_that_is_missing_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(CollisionMeshError, match=r"mug\.obj.*craft sim collision-meshes"):
         fine_mesh("mug", tmp_path)
     assert fine_mesh("apple", tmp_path) is None
+
+
+def test_a_build_never_replaces_a_folder_that_is_not_its_own(tmp_path: Path) -> None:
+    """``craft sim collision-meshes --out DIR`` swaps its result into DIR: a user's folder there
+    must survive untouched, with an error saying what to do (checked before any decomposition)."""
+    from craft_e.runtime.sim.collision_meshes import build_collision_meshes
+
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("keep me", encoding="utf-8")
+    with pytest.raises(CollisionMeshError, match=r"theirs.*not a collision-mesh build.*--out"):
+        build_collision_meshes(theirs)
+    assert (theirs / "notes.txt").read_text(encoding="utf-8") == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["theirs"]  # no staging folder left
+
+    mixed = tmp_path / "mixed"  # a build of ours with someone's file added: not ours either
+    shutil.copytree(COLLISION_DIR, mixed)
+    (mixed / "notes.txt").write_text("keep me", encoding="utf-8")
+    with pytest.raises(CollisionMeshError):
+        build_collision_meshes(mixed)
+    assert (mixed / "notes.txt").exists()
+    a_file = tmp_path / "file.obj"
+    a_file.write_text("v 0 0 0\n", encoding="utf-8")
+    with pytest.raises(CollisionMeshError):
+        build_collision_meshes(a_file)
+    assert a_file.read_text(encoding="utf-8") == "v 0 0 0\n"
+
+
+def test_a_rebuild_swaps_in_and_a_failed_one_keeps_the_old(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Into a previous build of ours the new one is swapped in whole; a build that fails half-way
+    leaves the previous one as it was and no staging folder behind."""
+    import craft_e.runtime.sim.collision_meshes as cm
+
+    out = tmp_path / "collision"
+    shutil.copytree(COLLISION_DIR, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    calls: list[str] = []
+
+    def fake_decompose(visual: Path, target: Path) -> None:
+        calls.append(visual.parent.name)
+        if len(calls) == 3:
+            raise CollisionMeshError("V-HACD failed")
+        target.write_text("o convex_0\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n", encoding="utf-8")
+
+    monkeypatch.setattr(cm, "decompose", fake_decompose)
+    with pytest.raises(CollisionMeshError, match="V-HACD failed"):
+        cm.build_collision_meshes(out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["collision"]
+
+    calls.clear()
+    monkeypatch.setattr(cm, "decompose", lambda visual, target: target.write_text(
+        "o convex_0\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n", encoding="utf-8"))
+    manifest = cm.build_collision_meshes(out)
+    assert json.loads((out / "manifest.json").read_text(encoding="utf-8")) == manifest
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["collision"]  # the old build is gone
