@@ -42,6 +42,9 @@ FineCollisionOpt = Annotated[bool, typer.Option(
 LandingCheckOpt = Annotated[bool, typer.Option(
     help="Reject grasps whose open finger would come down on the object's own surface beside the opening "
          "(a mug's far rim or handle; sim/fingers.py).")]
+RetriesOpt = Annotated[int, typer.Option(
+    min=0, help="After a pick whose hand ends empty (missed, grip lost), try again on a fresh frame up to this "
+                "many times (sim/retry.py); reported beside the single-attempt Grasp Rate, which it never changes.")]
 ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
                                                  "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 

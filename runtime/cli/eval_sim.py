@@ -36,6 +36,7 @@ def eval_sim(
     clearance: ep.ClearanceOpt = False,
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
+    retries: ep.RetriesOpt = 0,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -44,6 +45,7 @@ def eval_sim(
     from ..sim.pipeline import PipelineConfig
     from ..sim.placement import PlacementError
     from ..sim.refine import RefineConfig
+    from ..sim.retry import RetryConfig
 
     try:
         env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
@@ -59,6 +61,6 @@ def eval_sim(
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,
-                                 env_config=env_config),
+                                 env_config=env_config, retry=RetryConfig(retries=retries)),
         "episodes", "episodes", json_out, markdown,
         (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError))

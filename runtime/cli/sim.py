@@ -29,6 +29,7 @@ def demo(
     clearance: ep.ClearanceOpt = False,
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
+    retries: ep.RetriesOpt = 0,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -49,6 +50,7 @@ def demo(
     from ..sim.figures import FrameRecorder, describe, plot_episode
     from ..sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
     from ..sim.refine import RefineConfig
+    from ..sim.retry import RetryConfig
     from .common import err, fail
     from .common import out as console
 
@@ -91,7 +93,8 @@ def demo(
             recorder.active = True
             recorder.snapshot()
 
-        result = run_episode(env, spec.scene, grounders, encoder, config, before_pick=start_recording)
+        result = run_episode(env, spec.scene, grounders, encoder, config, before_pick=start_recording,
+                             retry=RetryConfig(retries=retries))
         if not recorder.frames:  # nothing was executed: a still of the scene
             recorder.snapshot()
     out.mkdir(parents=True, exist_ok=True)

@@ -197,4 +197,12 @@ def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) 
                     if pick is not None and pick.wrist_frames else "")
                  + (f", gripper {gripper}" if gripper else ""))
     lines.append(verdict(result, method)[1])
+    if outcome.retries:  # a retry policy ran after an empty hand (craft sim demo --retries)
+        for k, a in enumerate(outcome.retries, 1):
+            lines.append(f"retry {k}: chose roi{a.chosen_roi}" if a.chosen_roi is not None else f"retry {k}: no choice")
+            lines[-1] += (f" (the target), outcome {a.failure}" if a.detect else f" (not the target), {a.failure}") + (
+                f" ({a.pick_detail})" if a.pick_detail else "")
+        final = "SUCCESS" if outcome.retries[-1].failure == "success" else "FAILED"
+        lines.append(f"with {len(outcome.retries)} retr{'y' if len(outcome.retries) == 1 else 'ies'}: {final} "
+                     "(the single-attempt verdict above is what the benchmarks count)")
     return "\n".join(lines)

@@ -57,7 +57,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from functools import cache
-from typing import Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -79,6 +79,9 @@ from .fingers import finger_check as finger_check
 from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
 from .scene import Scene, SceneSpec
+
+if TYPE_CHECKING:
+    from .retry import Attempt, RetryConfig
 
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
@@ -104,7 +107,7 @@ class Failure(StrEnum):
     OUTSIDE_DROP_ZONE = "outside_drop_zone"
 
 
-_PICK_FAILURES: dict[Outcome, Failure] = {
+PICK_FAILURES: dict[Outcome, Failure] = {
     Outcome.SUCCESS: Failure.SUCCESS,
     Outcome.NO_GRASP: Failure.NO_GRASP,
     Outcome.IK_FAILURE: Failure.IK_FAILURE,
@@ -413,20 +416,28 @@ def _check(
 
 
 def _usable(
-    env: SimEnv, candidates: list[GraspCandidate], surfaces: _Surfaces, config: PipelineConfig
+    env: SimEnv, candidates: list[GraspCandidate], surfaces: _Surfaces, config: PipelineConfig,
+    exclude: Callable[[TopDownGrasp], bool] | None = None,
 ) -> tuple[list[GraspCandidate], tuple[GraspCandidate, ...]]:
     """(candidates with check results filled in, the grasps grounding may use).
 
     With checks on, only the best candidate that passes them is usable: the robot would execute
-    exactly that one. With checks off, every candidate with a pose is.
+    exactly that one. With checks off, every candidate with a pose is. Candidates ``exclude``
+    says yes to (a retry's grasps that already failed) are never usable.
     """
+    def excluded(c: GraspCandidate) -> bool:
+        return exclude is not None and c.pose is not None and exclude(c.pose)
+
     if not (config.fit_filter or config.ik_filter):
-        return candidates, tuple(c for c in candidates if c.pose is not None)
+        return candidates, tuple(c for c in candidates if c.pose is not None and not excluded(c))
     checked: list[GraspCandidate] = []
     chosen: GraspCandidate | None = None
     for c in candidates:
         if chosen is not None:
             checked.append(c)
+            continue
+        if excluded(c):
+            checked.append(GraspCandidate(c.rect, c.pose, detail="tried before and failed"))
             continue
         c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter)
         checked.append(c)
@@ -485,13 +496,14 @@ def _stage(timings: dict[str, float] | None, name: str) -> Iterator[None]:
 
 def perceive(
     env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation | None = None,
-    *, timings: dict[str, float] | None = None,
+    *, timings: dict[str, float] | None = None, exclude: Callable[[TopDownGrasp], bool] | None = None,
 ) -> ScenePerception:
     """Capture (unless ``obs`` is given), find ROIs and grasps, check them, embed the crops.
 
     ``env`` holds the built scene with the arm at home; nothing here moves it. ``timings``, if
     given, receives the wall time of the robot-side stages (``ROBOT_STAGES``; rendering and the
-    simulator's ground truth excluded) for ``benchmarks/bench_perception.py``.
+    simulator's ground truth excluded) for ``benchmarks/bench_perception.py``. ``exclude`` marks
+    grasps grounding must not use (``retry``: those that already failed).
     """
     from ..encoders.image import crop_box
 
@@ -521,7 +533,7 @@ def perceive(
         clear = config.pick.clearance
         surfaces = [_Surfaces(roi_points(world, raised, roi), table_z,
                               heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
-        checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config)
+        checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude)
                    for i, s in enumerate(surfaces)]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
@@ -620,6 +632,9 @@ class MethodOutcome:
     grasp: GraspCandidate | None
     true_class_roi: int | None = None  # the choice with p(o|r) set to the true class
     choice_error: ChoiceError | None = None  # set for wrong_object only
+    # With a retry policy (``retry.RetryConfig.retries`` > 0): the attempts after a first pick
+    # whose hand ended empty (empty when none was needed); None when the policy is off.
+    retries: tuple[Attempt, ...] | None = None
 
     @property
     def success(self) -> bool:
@@ -683,7 +698,9 @@ def true_class_choice(
     return usable[int(np.argsort(terms.total, kind="stable")[0])]
 
 
-def _not_detected(perception: ScenePerception) -> Failure:
+def not_detected(perception: ScenePerception) -> Failure:
+    """Why the target was not chosen when grounding chose another region or none: no region
+    for it, no usable grasp on it, or a wrong choice."""
     if perception.target_roi is None:
         return Failure.NO_TARGET_ROI
     if not perception.rois[perception.target_roi].usable:
@@ -699,15 +716,23 @@ def run_episode(
     config: PipelineConfig | None = None,
     *,
     before_pick: Callable[[str], None] | None = None,
+    retry: RetryConfig | None = None,
 ) -> EpisodeResult:
     """Build ``spec`` in ``env``, perceive once, then ground and execute per method.
 
     ``before_pick(method)`` is called right before a pick is simulated (e.g. to start recording
-    frames); picks already simulated for the same ROI are reused and do not call it.
+    frames); picks already simulated for the same ROI are reused and do not call it. With
+    ``retry.retries`` > 0, a pick whose hand ended empty is followed by up to that many attempts
+    on fresh frames (``retry.retry_picks``), each method's from the state right after the first
+    pick (saved once per pick); the first attempt is unchanged.
     """
+    from .retry import hand_empty, retry_picks
+
     cfg = config or PipelineConfig()
+    retrying = retry is not None and retry.retries > 0
     env.reset(spec)
     start = SavedStart(env)
+    after_pick: dict[int, int] = {}  # chosen ROI -> physics state right after its first pick
     try:
         perception = perceive(env, encoder, cfg)
         rois = grounding_rois(perception)
@@ -720,20 +745,22 @@ def run_episode(
             true_roi = true_class_choice(grounder, spec.verb, perception, body_names)
             if chosen is None:
                 outcomes[name] = MethodOutcome(name, grounding, None, 0.0, None, False,
-                                               _not_detected(perception), None, None, true_roi)
+                                               not_detected(perception), None, None, true_roi,
+                                               retries=() if retrying else None)
                 continue
             roi = perception.rois[chosen.index]
             detect = perception.target_box is not None and roi.target_iou >= cfg.detect_iou
             grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
             if not detect:
-                failure = _not_detected(perception)
+                failure = not_detected(perception)
                 error = None
                 if failure is Failure.WRONG_OBJECT:
                     fixed = true_roi is not None and perception.target_box is not None and (
                         perception.rois[true_roi].target_iou >= cfg.detect_iou)
                     error = ChoiceError.PERCEPTION if fixed else ChoiceError.KNOWLEDGE
                 outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
-                                               False, failure, None, grasp, true_roi, error)
+                                               False, failure, None, grasp, true_roi, error,
+                                               retries=() if retrying else None)
                 continue
             if chosen.index not in picks:
                 start.restore()
@@ -742,9 +769,20 @@ def run_episode(
                 picks[chosen.index] = execute_pick(
                     env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick
                 )
+                if retrying and hand_empty(picks[chosen.index]):
+                    after_pick[chosen.index] = int(p.saveState(physicsClientId=env.client))
             pick = picks[chosen.index]
+            attempts: tuple[Attempt, ...] | None = () if retrying else None
+            if retry is not None and chosen.index in after_pick:
+                p.restoreState(stateId=after_pick[chosen.index], physicsClientId=env.client)
+                tried = [grasp.pose] if grasp is not None and grasp.pose is not None else []
+                attempts = tuple(retry_picks(env, spec.verb, grounder, encoder, cfg, tried, retry))
             outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
-                                           True, _PICK_FAILURES[pick.outcome], pick, grasp, true_roi)
+                                           True, PICK_FAILURES[pick.outcome], pick, grasp, true_roi,
+                                           retries=attempts)
         return EpisodeResult(spec, perception, outcomes, dict(env.scene.body_assets))
     finally:
         start.release()
+        if env.client >= 0:
+            for state in after_pick.values():
+                p.removeState(state, physicsClientId=env.client)

@@ -392,6 +392,11 @@ class CR3Robot:
         self._step(self.config.settle_steps)
         return monitor() if monitor is not None else True
 
+    def hold(self) -> None:
+        """Command the arm to stay where it is (after ``p.restoreState``, which brings back
+        positions and velocities but not motor targets)."""
+        self._command(self.joint_positions())
+
     def move_to(self, position: Point3, yaw: float) -> IKSolution:
         """Joint-space move to a top-down TCP pose; does not move if IK fails."""
         solution = self.solve_ik(position, yaw)
