@@ -176,3 +176,43 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
         free = TopDownGrasp(position=np.array([0.45, -0.25, table_z + 0.02]), yaw=0.0, width_m=0.05)
         assert heights.heights(free.position[None, :2], 0.12)[0] == table_z
         assert plan_pick(env, free, on, heights) is None
+
+
+def test_the_preference_takes_the_first_clear_grasp_and_never_drops_a_region(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``ClearanceConfig.prefer``: among grasps that pass the finger and IK checks, the first with
+    a clear approach; when none is clear, the first that passes (the region keeps a grasp)."""
+    import dataclasses
+
+    from craft_e.runtime.grasp.geometry import Grasp2D
+    from craft_e.runtime.sim import pipeline
+
+    def candidate(i: int) -> pipeline.GraspCandidate:
+        pose = TopDownGrasp(position=np.array([0.4, 0.01 * i, 0.05]), yaw=0.0, width_m=0.04)
+        return pipeline.GraspCandidate(Grasp2D((10.0 * i, 5.0), 0.0, 20.0, 10.0, 1.0 - 0.1 * i), pose)
+
+    passing = {1, 2, 3}  # candidate 0 fails the finger check
+    blocked: set[int] = set()
+
+    def check(env: object, c: pipeline.GraspCandidate, *_: object) -> pipeline.GraspCandidate:
+        i = round(float(c.rect.center_xy[0]) / 10.0)
+        return pipeline.GraspCandidate(c.rect, c.pose, i in passing, True if i in passing else None)
+
+    def approach(env: object, pose: TopDownGrasp, *_: object) -> str | None:
+        return "hand box hits" if round(float(pose.position[1]) / 0.01) in blocked else None
+
+    monkeypatch.setattr(pipeline, "_check", check)
+    monkeypatch.setattr(pipeline, "approach_blocked", approach)
+    base = pipeline.PipelineConfig()
+    prefer = dataclasses.replace(base, pick=dataclasses.replace(base.pick, clearance=ClearanceConfig(prefer=True)))
+    surfaces = pipeline._Surfaces(np.zeros((0, 3)), 0.0, HeightMap(np.zeros((0, 3)), 0.005, 0.0))
+    cands = [candidate(i) for i in range(4)]
+
+    def usable(config: pipeline.PipelineConfig) -> int | None:
+        chosen = pipeline._usable(None, list(cands), surfaces, config)[1]  # type: ignore[arg-type]
+        return round(float(chosen[0].rect.center_xy[0]) / 10.0) if chosen else None
+
+    assert usable(base) == usable(prefer) == 1  # nothing blocked: the same grasp
+    blocked.update({1})
+    assert usable(base) == 1 and usable(prefer) == 2  # the first clear one
+    blocked.update({2, 3})
+    assert usable(prefer) == 1  # none clear: the first that passes, not no grasp

@@ -45,6 +45,9 @@ LandingCheckOpt = Annotated[bool, typer.Option(
 RetriesOpt = Annotated[int, typer.Option(
     min=0, help="After a pick whose hand ends empty (missed, grip lost), try again on a fresh frame up to this "
                 "many times (sim/retry.py); reported beside the single-attempt Grasp Rate, which it never changes.")]
+PreferClearOpt = Annotated[bool, typer.Option(
+    help="Use the clearance check as a preference: per region, the first grasp that passes the other checks "
+         "with a clear approach, else the first that passes (never drops a region; sim/clearance.py).")]
 ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
                                                  "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 

@@ -37,6 +37,7 @@ def eval_sim(
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
+    prefer_clear: ep.PreferClearOpt = False,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -49,7 +50,7 @@ def eval_sim(
 
     try:
         env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check)
+                                                 landing_check, prefer_clear)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers,

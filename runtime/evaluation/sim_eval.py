@@ -564,4 +564,6 @@ def evaluate_sim(
     }
     if retry is not None and retry.retries > 0:
         config_out["retries"] = retry.retries
+    if cfg.pick.clearance.prefer:
+        config_out["prefer_clear"] = True
     return SimReport(results, skipped, records, config_out)

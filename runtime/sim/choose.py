@@ -120,6 +120,9 @@ def perceive_for_pick(
 
     if config.grasp == "oracle" or config.rois == "oracle":
         raise ValueError("the robot's path has no oracle: use predicted ROIs and a grasp backend")
+    if config.pick.clearance.prefer:
+        raise ValueError("the robot's lazy path does not implement the clearance preference yet "
+                         "(ClearanceConfig.prefer); use perceive")
     with _stage(timings, "segment"):
         rois = segment(obs, config.segment).rois
     k = config.rgb_scale

@@ -60,6 +60,10 @@ class ClearanceConfig:
     # rejected that physics completes, the hand pushing a light neighbour aside; 3 changed
     # choices) against 3 gained: 57 vs 63 successes of 105.
     enabled: bool = False
+    # The same check as a preference instead of a filter: a region's grasp is the first that passes
+    # the finger and IK checks *and* has a clear approach, else (none clear) the first that passes
+    # the others, as without the check (``pipeline._usable``). Never leaves a region without grasp.
+    prefer: bool = False
     cell: float = 0.005  # m: height-map resolution
     sample_step: float = 0.01  # m between points sampled on hand boxes and arm segments
     arm_radius: float = 0.05  # m: the CR3 forearm and wrist links are ~9 cm thick
@@ -105,8 +109,9 @@ def heights_around(
     world: FloatArray, raised: BoolMask, target_mask: BoolMask, table_z: float, cfg: ClearanceConfig,
 ) -> HeightMap | None:
     """The height map of an overhead frame's ``world`` ``[H, W, 3]`` points above the table,
-    the target's own pixels (``target_mask``: its ROI) left out; None when the check is off."""
-    return HeightMap(world[raised & ~target_mask], cfg.cell, table_z) if cfg.enabled else None
+    the target's own pixels (``target_mask``: its ROI) left out; None when the check is off (as
+    a filter and as a preference)."""
+    return HeightMap(world[raised & ~target_mask], cfg.cell, table_z) if cfg.enabled or cfg.prefer else None
 
 
 def _box_bottom_points(box: HandBox, step: float) -> FloatArray:

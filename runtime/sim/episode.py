@@ -78,18 +78,19 @@ class PickConfig:
 
 def sim_configs(
     gripper: str, wrist_look: bool, clearance: bool = False, fine_collision: bool = True,
-    landing_check: bool = True,
+    landing_check: bool = True, prefer_clear: bool = False,
 ) -> tuple[EnvConfig, PickConfig, FingerGeometry]:
-    """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look``, ``--clearance``
-    and ``--fine-collision``, and the hand's finger geometry for the grasp checks
-    (``PipelineConfig.fingers``; ``--landing-check``).
+    """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look``, ``--clearance``,
+    ``--prefer-clear`` and ``--fine-collision``, and the hand's finger geometry for the grasp
+    checks (``PipelineConfig.fingers``; ``--landing-check``).
 
     Raises ValueError for an unknown gripper (the message lists the choices).
     """
     spec = hand_spec(gripper)
     pick = PickConfig()
     pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look),
-                               clearance=dataclasses.replace(pick.clearance, enabled=clearance))
+                               clearance=dataclasses.replace(pick.clearance, enabled=clearance,
+                                                             prefer=prefer_clear))
     env = EnvConfig(gripper=GripperConfig(hand=spec.name), physics=PhysicsConfig(fine_collision=fine_collision))
     return env, pick, dataclasses.replace(spec.fingers, check_landing=landing_check)
 
@@ -195,6 +196,15 @@ def plan_pick(
     if obstacles is None or not cfg.clearance.enabled:
         return None
     return obstructed(env.robot, plan, obstacles, cfg.clearance)
+
+
+def approach_blocked(
+    env: SimEnv, grasp: TopDownGrasp, config: PickConfig, obstacles: HeightMap,
+) -> str | None:
+    """What the overhead depth says the approach of a *reachable* pick would touch (None: clear,
+    or unreachable, which ``plan_pick`` reports); for ``ClearanceConfig.prefer``."""
+    plan = _plan(env.robot, env.scene, grasp, config)
+    return None if isinstance(plan, str) else obstructed(env.robot, plan, obstacles, config.clearance)
 
 
 def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: ClearanceConfig) -> str | None:

@@ -72,7 +72,7 @@ from ..perception.segment import SegmentConfig, segment
 from .assets import object_catalog
 from .clearance import HeightMap, heights_around
 from .env import SimEnv
-from .episode import Outcome, PickConfig, PickResult, execute_pick, plan_pick
+from .episode import Outcome, PickConfig, PickResult, approach_blocked, execute_pick, plan_pick
 from .fingers import FingerGeometry as FingerGeometry
 from .fingers import SurfacePoints
 from .fingers import finger_check as finger_check
@@ -430,8 +430,10 @@ def _usable(
 
     if not (config.fit_filter or config.ik_filter):
         return candidates, tuple(c for c in candidates if c.pose is not None and not excluded(c))
+    prefer = config.pick.clearance.prefer and surfaces.heights is not None
     checked: list[GraspCandidate] = []
     chosen: GraspCandidate | None = None
+    fallback: GraspCandidate | None = None  # prefer: the first that passes, if none is clear
     for c in candidates:
         if chosen is not None:
             checked.append(c)
@@ -440,9 +442,16 @@ def _usable(
             checked.append(GraspCandidate(c.rect, c.pose, detail="tried before and failed"))
             continue
         c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter)
-        checked.append(c)
         if c.pose is not None and c.fits is not False and c.reachable is not False:
-            chosen = c
+            blocked = (approach_blocked(env, c.pose, config.pick, surfaces.heights)
+                       if prefer and surfaces.heights is not None else None)
+            if blocked is None:
+                chosen = c
+            else:
+                c = GraspCandidate(c.rect, c.pose, c.fits, c.reachable, f"passes; not preferred: {blocked}")
+                fallback = fallback or c
+        checked.append(c)
+    chosen = chosen or fallback
     return checked, (() if chosen is None else (chosen,))
 
 
