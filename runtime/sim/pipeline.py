@@ -57,7 +57,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from functools import cache
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from typing import Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -78,10 +78,8 @@ from .fingers import SurfacePoints
 from .fingers import finger_check as finger_check
 from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
+from .retry import Attempt, RetryConfig, hand_empty, return_home, same_grasp
 from .scene import Scene, SceneSpec
-
-if TYPE_CHECKING:
-    from .retry import Attempt, RetryConfig
 
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
@@ -732,11 +730,9 @@ def run_episode(
     ``before_pick(method)`` is called right before a pick is simulated (e.g. to start recording
     frames); picks already simulated for the same ROI are reused and do not call it. With
     ``retry.retries`` > 0, a pick whose hand ended empty is followed by up to that many attempts
-    on fresh frames (``retry.retry_picks``), each method's from the state right after the first
+    on fresh frames (``retry_picks``), each method's from the state right after the first
     pick (saved once per pick); the first attempt is unchanged.
     """
-    from .retry import hand_empty, retry_picks
-
     cfg = config or PipelineConfig()
     retrying = retry is not None and retry.retries > 0
     env.reset(spec)
@@ -795,3 +791,38 @@ def run_episode(
         if env.client >= 0:
             for state in after_pick.values():
                 p.removeState(state, physicsClientId=env.client)
+
+
+def retry_picks(
+    env: SimEnv, verb: str, grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig,
+    failed: Sequence[TopDownGrasp], cfg: RetryConfig,
+) -> list[Attempt]:
+    """The retry policy (``retry``): up to ``cfg.retries`` more attempts from ``env``'s current
+    state (right after a pick whose hand ended empty), each on a fresh perception; stops at a
+    success or a failure the robot cannot sense. ``failed`` are the grasps already tried (world
+    poses)."""
+    tried = list(failed)
+    attempts: list[Attempt] = []
+    for _ in range(cfg.retries):
+        return_home(env, cfg)
+        perception = perceive(env, encoder, config,
+                              exclude=lambda pose: any(same_grasp(pose, t, cfg) for t in tried))
+        chosen = grounder.ground(verb, grounding_rois(perception)).chosen
+        if chosen is None:
+            attempts.append(Attempt(None, False, not_detected(perception).value))
+            break
+        roi = perception.rois[chosen.index]
+        detect = perception.target_box is not None and roi.target_iou >= config.detect_iou
+        grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
+        if not detect:
+            failure = not_detected(perception)
+            attempts.append(Attempt(chosen.index, False, failure.value))
+            break
+        pose = grasp.pose if grasp is not None else None
+        pick = execute_pick(env, pose, perception.target_body, config.pick)
+        quality = grasp.quality if grasp is not None else None
+        attempts.append(Attempt(chosen.index, True, PICK_FAILURES[pick.outcome].value, pick.detail, quality))
+        if not hand_empty(pick) or pose is None:
+            break
+        tried.append(pose)
+    return attempts

@@ -16,6 +16,9 @@ within ``same_grasp_distance`` and ``same_grasp_angle_deg`` of one that already 
 tried again: the region's next candidate that passes the grasp checks is (``perceive``'s
 ``exclude``; if there is none, the region has no grasp and grounding passes it over).
 
+The attempts themselves run in ``pipeline.retry_picks`` (they need the whole perception); this
+module holds the policy: when to retry, what counts as the same grasp, the way home.
+
 Nothing here changes the first attempt: with retries off the episode records are byte-identical
 (``tests/test_retry.py``).
 """
@@ -28,19 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..encoders.image import ImageEncoder
 from ..grasp.geometry import TopDownGrasp
-from ..grounding.grounder import Grounder
 from .env import SimEnv
-from .episode import Outcome, PickResult, execute_pick
-from .pipeline import (
-    PICK_FAILURES,
-    GraspCandidate,
-    PipelineConfig,
-    grounding_rois,
-    not_detected,
-    perceive,
-)
+from .episode import Outcome, PickResult
 from .robot import HOME_Q
 
 #: Pick outcomes after which the robot's hand is empty and it knows so.
@@ -101,40 +94,6 @@ def return_home(env: SimEnv, cfg: RetryConfig) -> None:
     robot.follow([HOME_Q])
     env.step(cfg.settle_steps)
     robot.reset_home()  # the settled arm is at home to ~1e-4 rad; make the frame's start exact
-
-
-def retry_picks(
-    env: SimEnv, verb: str, grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig,
-    failed: Sequence[TopDownGrasp], cfg: RetryConfig,
-) -> list[Attempt]:
-    """Up to ``cfg.retries`` more attempts from ``env``'s current state (right after a pick whose
-    hand ended empty), each on a fresh perception; stops at a success or a failure the robot
-    cannot sense. ``failed`` are the grasps already tried (world poses)."""
-    tried = list(failed)
-    attempts: list[Attempt] = []
-    for _ in range(cfg.retries):
-        return_home(env, cfg)
-        perception = perceive(env, encoder, config,
-                              exclude=lambda pose: any(same_grasp(pose, t, cfg) for t in tried))
-        chosen = grounder.ground(verb, grounding_rois(perception)).chosen
-        if chosen is None:
-            attempts.append(Attempt(None, False, not_detected(perception).value))
-            break
-        roi = perception.rois[chosen.index]
-        detect = perception.target_box is not None and roi.target_iou >= config.detect_iou
-        grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
-        if not detect:
-            failure = not_detected(perception)
-            attempts.append(Attempt(chosen.index, False, failure.value))
-            break
-        pose = grasp.pose if grasp is not None else None
-        pick = execute_pick(env, pose, perception.target_body, config.pick)
-        quality = grasp.quality if grasp is not None else None
-        attempts.append(Attempt(chosen.index, True, PICK_FAILURES[pick.outcome].value, pick.detail, quality))
-        if not hand_empty(pick) or pose is None:
-            break
-        tried.append(pose)
-    return attempts
 
 
 def succeeded(first_success: bool, attempts: Sequence[Attempt]) -> bool:
