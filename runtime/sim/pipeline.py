@@ -65,7 +65,7 @@ import pybullet as p
 
 from ..encoders.image import ImageEncoder
 from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
-from ..grounding.grounder import Grounder, Grounding
+from ..grounding.grounder import Grounder, Grounding, RankedROI
 from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
 from ..perception.segment import SegmentConfig, segment
@@ -705,6 +705,16 @@ def true_class_choice(
     return usable[int(np.argsort(terms.total, kind="stable")[0])]
 
 
+def chosen_region(
+    perception: ScenePerception, chosen: RankedROI, detect_iou: float,
+) -> tuple[PerceivedROI, bool, GraspCandidate | None]:
+    """The chosen region, whether it is the target (Detect: box IoU >= ``detect_iou``) and the
+    grasp grounding chose with it."""
+    roi = perception.rois[chosen.index]
+    detect = perception.target_box is not None and roi.target_iou >= detect_iou
+    return roi, detect, chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
+
+
 def not_detected(perception: ScenePerception) -> Failure:
     """Why the target was not chosen when grounding chose another region or none: no region
     for it, no usable grasp on it, or a wrong choice."""
@@ -753,9 +763,7 @@ def run_episode(
                                                not_detected(perception), None, None, true_roi,
                                                retries=() if retrying else None)
                 continue
-            roi = perception.rois[chosen.index]
-            detect = perception.target_box is not None and roi.target_iou >= cfg.detect_iou
-            grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
+            roi, detect, grasp = chosen_region(perception, chosen, cfg.detect_iou)
             if not detect:
                 failure = not_detected(perception)
                 error = None
@@ -811,12 +819,9 @@ def retry_picks(
         if chosen is None:
             attempts.append(Attempt(None, False, not_detected(perception).value))
             break
-        roi = perception.rois[chosen.index]
-        detect = perception.target_box is not None and roi.target_iou >= config.detect_iou
-        grasp = chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
+        _, detect, grasp = chosen_region(perception, chosen, config.detect_iou)
         if not detect:
-            failure = not_detected(perception)
-            attempts.append(Attempt(chosen.index, False, failure.value))
+            attempts.append(Attempt(chosen.index, False, not_detected(perception).value))
             break
         pose = grasp.pose if grasp is not None else None
         pick = execute_pick(env, pose, perception.target_body, config.pick)
