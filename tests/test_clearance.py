@@ -193,15 +193,14 @@ def test_the_preference_takes_the_first_clear_grasp_and_never_drops_a_region(mon
     passing = {1, 2, 3}  # candidate 0 fails the finger check
     blocked: set[int] = set()
 
-    def check(env: object, c: pipeline.GraspCandidate, *_: object) -> pipeline.GraspCandidate:
-        i = round(float(c.rect.center_xy[0]) / 10.0)
-        return pipeline.GraspCandidate(c.rect, c.pose, i in passing, True if i in passing else None)
+    def problems(env: object, pose: TopDownGrasp, *_: object) -> tuple[str | None, str | None]:
+        return None, "hand box hits" if round(float(pose.position[1]) / 0.01) in blocked else None
 
-    def approach(env: object, pose: TopDownGrasp, *_: object) -> str | None:
-        return "hand box hits" if round(float(pose.position[1]) / 0.01) in blocked else None
+    def finger(material: object, pose: TopDownGrasp, *_: object) -> tuple[bool, str]:
+        return round(float(pose.position[1]) / 0.01) in passing, ""
 
-    monkeypatch.setattr(pipeline, "_check", check)
-    monkeypatch.setattr(pipeline, "approach_blocked", approach)
+    monkeypatch.setattr(pipeline, "pick_problems", problems)
+    monkeypatch.setattr(pipeline, "finger_check", finger)
     base = pipeline.PipelineConfig()
     prefer = dataclasses.replace(base, pick=dataclasses.replace(base.pick, clearance=ClearanceConfig(prefer=True)))
     surfaces = pipeline._Surfaces(np.zeros((0, 3)), 0.0, HeightMap(np.zeros((0, 3)), 0.005, 0.0))

@@ -190,21 +190,20 @@ def plan_pick(
     its own depth frame are information a real controller has before it moves).
     """
     cfg = config or PickConfig()
-    plan = _plan(env.robot, env.scene, grasp, cfg)
-    if isinstance(plan, str):
-        return plan
-    if obstacles is None or not cfg.clearance.enabled:
-        return None
-    return obstructed(env.robot, plan, obstacles, cfg.clearance)
+    unreachable, blocked = pick_problems(env, grasp, cfg, obstacles if cfg.clearance.enabled else None)
+    return unreachable or blocked
 
 
-def approach_blocked(
-    env: SimEnv, grasp: TopDownGrasp, config: PickConfig, obstacles: HeightMap,
-) -> str | None:
-    """What the overhead depth says the approach of a *reachable* pick would touch (None: clear,
-    or unreachable, which ``plan_pick`` reports); for ``ClearanceConfig.prefer``."""
+def pick_problems(
+    env: SimEnv, grasp: TopDownGrasp, config: PickConfig, obstacles: HeightMap | None,
+) -> tuple[str | None, str | None]:
+    """(why the pick is unreachable, what its approach would touch among ``obstacles``), from one
+    plan; the second is None when the pick is unreachable or no ``obstacles`` are given.
+    ``plan_pick`` is the filter; ``ClearanceConfig.prefer`` uses the second answer alone."""
     plan = _plan(env.robot, env.scene, grasp, config)
-    return None if isinstance(plan, str) else obstructed(env.robot, plan, obstacles, config.clearance)
+    if isinstance(plan, str):
+        return plan, None
+    return None, None if obstacles is None else obstructed(env.robot, plan, obstacles, config.clearance)
 
 
 def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: ClearanceConfig) -> str | None:

@@ -72,7 +72,7 @@ from ..perception.segment import SegmentConfig, segment
 from .assets import object_catalog
 from .clearance import HeightMap, heights_around
 from .env import SimEnv
-from .episode import Outcome, PickConfig, PickResult, approach_blocked, execute_pick, plan_pick
+from .episode import Outcome, PickConfig, PickResult, execute_pick, pick_problems
 from .fingers import FingerGeometry as FingerGeometry
 from .fingers import SurfacePoints
 from .fingers import finger_check as finger_check
@@ -182,6 +182,7 @@ class GraspCandidate:
     fits: bool | None = None
     reachable: bool | None = None
     detail: str = ""
+    blocked: str | None = None  # ClearanceConfig.prefer: what the approach of a passing grasp would touch
 
     @property
     def quality(self) -> float:
@@ -393,9 +394,11 @@ class _Surfaces:
 
 def _check(
     env: SimEnv, candidate: GraspCandidate, surfaces: _Surfaces, config: PipelineConfig,
-    fit: bool, ik: bool,
+    fit: bool, ik: bool, prefer: bool = False,
 ) -> GraspCandidate:
-    """Run the requested checks on one candidate (fingers first: cheap; IK costs ~50 ms)."""
+    """Run the requested checks on one candidate (fingers first: cheap; IK costs ~50 ms). With
+    ``prefer`` (``ClearanceConfig.prefer``), a candidate that passes also gets ``blocked``: what
+    its approach would touch, from the same plan as its IK check."""
     if candidate.pose is None:
         return GraspCandidate(candidate.rect, None, False, False, "no valid depth at the centre")
     fits: bool | None = None
@@ -406,11 +409,19 @@ def _check(
         if not fits:
             return GraspCandidate(candidate.rect, candidate.pose, False, None, detail)
     reachable: bool | None = None
-    if ik:
-        why = plan_pick(env, candidate.pose, config.pick, surfaces.heights)
-        reachable = why is None
-        detail = why or ""
-    return GraspCandidate(candidate.rect, candidate.pose, fits, reachable, detail)
+    blocked: str | None = None
+    if ik or prefer:
+        clear = config.pick.clearance
+        obstacles = surfaces.heights if clear.enabled or prefer else None
+        unreachable, touched = pick_problems(env, candidate.pose, config.pick, obstacles)
+        if ik:
+            why = unreachable or (touched if clear.enabled else None)
+            reachable = why is None
+            detail = why or ""
+        if prefer and reachable is not False and touched is not None:
+            blocked = touched
+            detail = f"passes; not preferred: {touched}"
+    return GraspCandidate(candidate.rect, candidate.pose, fits, reachable, detail, blocked)
 
 
 def _usable(
@@ -439,14 +450,11 @@ def _usable(
         if excluded(c):
             checked.append(GraspCandidate(c.rect, c.pose, detail="tried before and failed"))
             continue
-        c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter)
+        c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter, prefer)
         if c.pose is not None and c.fits is not False and c.reachable is not False:
-            blocked = (approach_blocked(env, c.pose, config.pick, surfaces.heights)
-                       if prefer and surfaces.heights is not None else None)
-            if blocked is None:
+            if c.blocked is None:
                 chosen = c
             else:
-                c = GraspCandidate(c.rect, c.pose, c.fits, c.reachable, f"passes; not preferred: {blocked}")
                 fallback = fallback or c
         checked.append(c)
     chosen = chosen or fallback
@@ -745,6 +753,7 @@ def run_episode(
     """
     cfg = config or PipelineConfig()
     retrying = retry is not None and retry.retries > 0
+    no_retries: tuple[Attempt, ...] | None = () if retrying else None  # an outcome with nothing to retry
     env.reset(spec)
     start = SavedStart(env)
     after_pick: dict[int, int] = {}  # chosen ROI -> physics state right after its first pick
@@ -761,7 +770,7 @@ def run_episode(
             if chosen is None:
                 outcomes[name] = MethodOutcome(name, grounding, None, 0.0, None, False,
                                                not_detected(perception), None, None, true_roi,
-                                               retries=() if retrying else None)
+                                               retries=no_retries)
                 continue
             roi, detect, grasp = chosen_region(perception, chosen, cfg.detect_iou)
             if not detect:
@@ -773,7 +782,7 @@ def run_episode(
                     error = ChoiceError.PERCEPTION if fixed else ChoiceError.KNOWLEDGE
                 outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
                                                False, failure, None, grasp, true_roi, error,
-                                               retries=() if retrying else None)
+                                               retries=no_retries)
                 continue
             if chosen.index not in picks:
                 start.restore()
@@ -785,7 +794,7 @@ def run_episode(
                 if retrying and hand_empty(picks[chosen.index]):
                     after_pick[chosen.index] = int(p.saveState(physicsClientId=env.client))
             pick = picks[chosen.index]
-            attempts: tuple[Attempt, ...] | None = () if retrying else None
+            attempts = no_retries
             if retry is not None and chosen.index in after_pick:
                 p.restoreState(stateId=after_pick[chosen.index], physicsClientId=env.client)
                 tried = [grasp.pose] if grasp is not None and grasp.pose is not None else []
