@@ -567,7 +567,9 @@ def cache_clean(
 def curate_record(
     prompt: Annotated[
         str,
-        typer.Option(help="verb_properties | object_properties | property_objects | verb_objects"),
+        typer.Option(
+            help="verb_properties | object_properties | property_objects | verb_objects | object_size"
+        ),
     ],
     answers: Annotated[Path, typer.Option(help="JSONL file: one answer payload per line.")],
     verbs: Annotated[
@@ -617,7 +619,7 @@ def curate_pending(
         str,
         typer.Option(
             help="object_properties (stage 2) | property_objects (stage 2b) | verb_objects "
-            "(direct) | verb_properties (stage 1)."
+            "(direct) | verb_properties (stage 1) | object_size (typical sizes, for perception)."
         ),
     ] = "object_properties",
 ) -> None:
@@ -628,6 +630,7 @@ def curate_pending(
         pending_direct_requests,
         pending_object_requests,
         pending_property_requests,
+        pending_size_requests,
         pending_verb_requests,
     )
     from .sources.llm import LLMSource, SourceError
@@ -641,6 +644,7 @@ def curate_pending(
             "property_objects": pending_property_requests,
             "verb_objects": pending_direct_requests,
             "verb_properties": pending_verb_requests,
+            "object_size": pending_size_requests,
         }
         if prompt not in listers:
             fail(f"unknown prompt {prompt!r}; choose one of {', '.join(listers)}")

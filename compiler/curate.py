@@ -18,6 +18,7 @@ from pydantic import ValidationError
 from ..schemas.names import normalize_name, normalize_property, normalize_verb
 from ..schemas.v1.payloads import (
     ObjectProperties,
+    ObjectSize,
     PropertyObjects,
     VerbObjects,
     VerbProperties,
@@ -32,6 +33,8 @@ from .llm_knowledge import (
     read_verb_properties,
     verb_call,
 )
+from .object_sizes import PROMPT_ID as SIZE_PROMPT_ID
+from .object_sizes import pending_size_calls
 from .prompts import DEFAULT_PROMPT_VERSION
 from .sources.llm import LLM_SOURCE, LLMSource, PromptCall
 
@@ -117,6 +120,8 @@ def record_answers(
         properties, definitions = _stage1_properties(source, verbs, version, senses)
         _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
         pending = {c.subject: c for c in calls}
+    elif prompt_id == SIZE_PROMPT_ID:
+        pending = pending_size_calls(source, objects, glosses or {})
     for lineno, row in _read_answers(answers):
         where = f"{answers}:{lineno}"
         try:
@@ -193,6 +198,17 @@ def record_answers(
                     raise CurationError(
                         f"{where}: ranking names objects not offered: {outside[:5]}"
                     )
+            elif prompt_id == SIZE_PROMPT_ID:
+                size = ObjectSize.model_validate(row)
+                payload = size.model_dump(mode="json")
+                obj = normalize_name(size.object, singularize=False)
+                if obj not in pending:
+                    result.skipped.append(
+                        f"{where}: {obj!r} has no pending size request (already recorded or not "
+                        "in the objects file)"
+                    )
+                    continue
+                call = pending[obj]
             else:
                 raise CurationError(f"unknown prompt id {prompt_id!r}")
         except CurationError:
@@ -323,4 +339,26 @@ def pending_verb_requests(
         }
         for c in calls
         if source.lookup(c) is None
+    ]
+
+
+def pending_size_requests(
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
+) -> list[dict[str, object]]:
+    """Size prompts still to answer: object (+ gloss) and the rendered prompt."""
+    del verbs, version, verb_glosses  # one version; sizes name no verbs or properties
+    calls = pending_size_calls(source, objects, glosses or {})
+    return [
+        {
+            "object": c.subject,
+            "gloss": str(c.variables["gloss"]),
+            "prompt": c.template.render(**c.variables)[1].content,
+        }
+        for c in calls.values()
     ]

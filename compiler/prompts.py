@@ -22,6 +22,7 @@ from pydantic import BaseModel
 
 from ..schemas.v1.payloads import (
     ObjectProperties,
+    ObjectSize,
     PropertyObjects,
     VerbObjects,
     VerbProperties,
@@ -37,6 +38,7 @@ PAYLOADS: dict[str, type[BaseModel]] = {
     "object_properties": ObjectProperties,
     "verb_objects": VerbObjects,
     "property_objects": PropertyObjects,
+    "object_size": ObjectSize,
 }
 #: Payload models whose shape changed with a prompt version (``<id>@<version>``).
 VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {
@@ -53,6 +55,7 @@ DEFAULT_VERSIONS = {
     "object_properties": DEFAULT_PROMPT_VERSION,
     "verb_objects": DEFAULT_PROMPT_VERSION,
     "property_objects": "v1",
+    "object_size": "v1",
 }
 _SECTION = re.compile(r"^## (system|user)\s*$", re.MULTILINE)
 

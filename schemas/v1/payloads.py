@@ -142,3 +142,29 @@ class VerbObjects(_Strict):
         if len(set(names)) != len(names):
             raise ValueError("each object may appear once in the ranking")
         return value
+
+
+Centimetres = Annotated[float, Field(gt=0.0, le=10_000.0)]
+Variability = Literal["low", "medium", "high"]
+
+
+class ObjectSize(_Strict):
+    """Perception knowledge: the physical size of a typical ``object`` (prompt ``object_size``).
+
+    ``dimensions_cm``: the three edges of the smallest box that holds a typical instance, longest
+    first. A depth camera measures an ROI's extents, so a size says which names an ROI can be
+    (an apple is not 30 cm long) without any picture of the object. ``variability`` says how far
+    instances stray from it (a marker: low; a toy: high), and sets how much a mismatch counts.
+    """
+
+    object: Phrase
+    dimensions_cm: list[Centimetres] = Field(min_length=3, max_length=3)
+    variability: Variability
+    note: Annotated[str, Field(max_length=200)] = ""
+
+    @field_validator("dimensions_cm")
+    @classmethod
+    def _longest_first(cls, value: list[float]) -> list[float]:
+        if any(a < b for a, b in zip(value, value[1:], strict=False)):
+            raise ValueError(f"dimensions_cm must be longest first, got {value}")
+        return value
