@@ -53,6 +53,7 @@ from .llm_knowledge import (
     direct_llm_draft,
     llm_property_draft,
 )
+from .object_sizes import recorded_sizes, sizes_json
 from .prompts import DEFAULT_PROMPT_VERSION
 from .rdf import graph_turtle
 from .sources.llm import LLMSource, Transport
@@ -232,6 +233,12 @@ def build(
     from safetensors.numpy import load as load_safetensors
 
     open_world = fit_open_world(load_safetensors(embeddings_blob)["object"], w_po, tau=config.tau)
+    # perception knowledge: the objects' typical sizes, where a record gives one (never asked for)
+    sizes = recorded_sizes(
+        LLMSource(cache=cache, provider=config.provider, model=config.model),
+        draft.objects, objects.glosses,
+    )
+    draft.count("object_sizes", "objects with a typical size", len(sizes))
     report = BundleReport(
         kb_name=config.name,
         counts={
@@ -259,6 +266,7 @@ def build(
             json.dumps(report.model_dump(mode="json"), indent=1, sort_keys=True) + "\n"
         ).encode(),
         "open_world.json": open_world_json(open_world),
+        "object_sizes.json": sizes_json(sizes, config.provider, config.model),
     }
     digests = {name: file_digest(data) for name, data in files.items()}
     manifest = Manifest(

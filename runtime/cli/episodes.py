@@ -48,6 +48,11 @@ RetriesOpt = Annotated[int, typer.Option(
 PreferClearOpt = Annotated[bool, typer.Option(
     help="Use the clearance check as a preference: per region, the first grasp that passes the other checks "
          "with a clear approach, else the first that passes (never drops a region; sim/clearance.py).")]
+SizeCueOpt = Annotated[bool | None, typer.Option(
+    "--size-cue/--no-size-cue",
+    help="Weigh p(o|r) by how well each ROI's extents, measured from depth, fit the objects' typical sizes "
+         "(the bundle's object_sizes.json; grounding/size_cue.py). Default: on wherever every vocabulary "
+         "object has a size; --size-cue requires it.", show_default=False)]
 ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
                                                  "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 

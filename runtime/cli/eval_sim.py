@@ -38,6 +38,7 @@ def eval_sim(
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
     prefer_clear: ep.PreferClearOpt = False,
+    size_cue: ep.SizeCueOpt = None,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -58,7 +59,7 @@ def eval_sim(
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir)
-    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode)
+    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,

@@ -30,6 +30,7 @@ def demo(
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
+    size_cue: ep.SizeCueOpt = None,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -81,7 +82,8 @@ def demo(
         fail(str(exc))
     method = bundle.manifest.kb_name
     encoder = default_encoder(threads)
-    grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)], GroundingSettings(),
+    grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)],
+                                GroundingSettings(size_cue=size_cue),
                                 sim_vocabulary())
     err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
               f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)

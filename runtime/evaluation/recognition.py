@@ -16,7 +16,10 @@ Settings (each row changes one thing over the row it builds on; the renders are 
 * ``+ mirror TTA``: probabilities averaged with the mirror image's;
 * ``active look``: a second camera 0.35 m from the object at 45° elevation, from the robot's
   side (as an on-arm camera could move), alone and fused with the overhead view (mean of the
-  two ConSE embeddings).
+  two ConSE embeddings);
+* ``2x fit + size cue``: the default view, with ``p(o | r)`` also weighed by how well the asset's
+  extents, measured from the overhead depth, fit each name's typical size (the bundle's
+  ``object_sizes.json``, one recorded answer per name; ``grounding/size_cue.py``).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ if TYPE_CHECKING:
 
 LOOK_DISTANCE = 0.35  # m from the object's centre
 LOOK_ELEVATION = 45.0  # degrees above the table
+RAISED_M = 0.003  # points this far above the table are the object's (FingerConfig.height_tolerance)
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,8 @@ class View:
     crop_1x: npt.NDArray[np.uint8]
     crop_2x: npt.NDArray[np.uint8]
     crop_look: npt.NDArray[np.uint8]
+    #: box edges from the overhead depth of the asset's raised points (``perception/extents.py``)
+    extents_m: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,7 @@ class Setting:
     source: str  # "1x" | "2x" | "look" | "fused"
     preprocess: str = "center"
     tta: int = 1
+    size_cue: bool = False
 
 
 SETTINGS: tuple[Setting, ...] = (
@@ -65,6 +72,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("+ mirror TTA", "2x, fit; probabilities averaged with the mirror image", "2x", "fit", 2),
     Setting("active look", "a second camera 0.35 m away at 45°, alone (fit)", "look", "fit"),
     Setting("overhead + active look", "mean embedding of the 2x fit view and the look (fit)", "fused", "fit"),
+    Setting("2x fit + size cue", "2x, fit; p(o|r) weighed by the depth extents' fit to each name's "
+            "typical size (object_sizes.json)", "2x", "fit", size_cue=True),
 )
 
 
@@ -79,6 +88,7 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
     import pybullet as p
 
     from ..encoders.image import crop_box
+    from ..perception.extents import measure_extents
     from ..sim.assets import object_catalog
     from ..sim.camera import Camera, render
     from ..sim.scene import SceneSpec, TableLayout, make_scene
@@ -112,8 +122,11 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
                 look_mask = look.seg == body
                 crop_look = (crop_box(look.rgb, _box(look_mask)) if look_mask.any()
                              else obs.rgb[:1, :1])
+                raised = obs.points_world()[np.asarray(obs.seg == body)]
+                raised = raised[raised[:, 2] > layout.table_z + RAISED_M]
                 out.append(View(asset, catalog[asset].name, v, crop_box(obs.rgb, box),
-                                crop_box(rgb2, tuple(2 * x for x in box)), crop_look))
+                                crop_box(rgb2, tuple(2 * x for x in box)), crop_look,
+                                measure_extents(raised, layout.table_z)))
             if progress is not None:
                 progress(n + 1, len(assets))
     finally:
@@ -147,9 +160,10 @@ class RecognitionReport:
         return out
 
 
-def _ranks(grounder: Grounder, emb: npt.NDArray[np.float32], names: Sequence[str]) -> npt.NDArray[np.int64]:
+def _ranks(grounder: Grounder, emb: npt.NDArray[np.float32], names: Sequence[str],
+           extents: npt.NDArray[np.float64] | None = None) -> npt.NDArray[np.int64]:
     """Rank (0 = top) of each view's true name under p(o|r)."""
-    p = grounder.energies(grounder.verbs[0], emb).p_obj  # [N, O]; the verb does not enter p
+    p = grounder.energies(grounder.verbs[0], emb, extents=extents).p_obj  # [N, O]; the verb does not enter p
     cols = [grounder.vocabulary.index(n) for n in names]
     true = p[np.arange(len(names)), cols]
     return np.asarray((p > true[:, None]).sum(axis=1), dtype=np.int64)
@@ -170,8 +184,10 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
 
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
-    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default", check_encoder=False),
-                        GroundingSettings(vocabulary=list(sim_vocabulary())))
+    bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
+    grounder = Grounder(bundle, GroundingSettings(vocabulary=list(sim_vocabulary())))
+    sized = Grounder(bundle, GroundingSettings(vocabulary=list(sim_vocabulary()), size_cue=True))
+    extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     names = [v.name for v in rendered]
     encoders: dict[tuple[str, int], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
@@ -195,7 +211,7 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
                 emb = np.asarray(enc.embed_images([getattr(v, attr) for v in rendered]), dtype=np.float32)
                 rois = len(rendered)
             ms = 1000 * (time.perf_counter() - start) / rois
-            ranks = _ranks(grounder, emb, names)
+            ranks = _ranks(sized, emb, names, extents) if s.size_cue else _ranks(grounder, emb, names)
             rows.append({"setting": s.name, "description": s.description, "source": s.source,
                          "preprocess": s.preprocess, "tta": s.tta, "encoder_id": enc.id,
                          "top1": round(float(np.mean(ranks == 0)), 6),

@@ -211,6 +211,7 @@ class StaticROI:
     mask: BoolMask
     grasps: tuple[Grasp2D, ...]
     embedding: Embedding
+    extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
 
 
 @dataclass(frozen=True)
@@ -235,8 +236,10 @@ def render_scene(
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
     from ..encoders.image import crop_box
     from ..grasp.predict import predict_grasps_rois
+    from ..perception.extents import measure_extents
     from ..perception.segment import segment
     from ..sim.env import SimEnv
+    from ..sim.fingers import FingerGeometry
     from ..sim.oracle import gt_rois
     from ..sim.pipeline import majority_body, raster_order, torch_threads
 
@@ -260,20 +263,25 @@ def render_scene(
         net = {b: [tuple(g) for g in predict_grasps_rois(b, obs.rgb, obs.depth, [r.mask for r in predicted],
                                                         intrinsics=obs.intrinsics)] for b in backends}
     gt_emb, pred_emb = emb[: len(truth)], emb[len(truth):]
+    world = obs.points_world()  # [H, W, 3]
+    table_z = scene.layout.table_z
+    raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + FingerGeometry().height_tolerance
+    gt_ext = [measure_extents(world[r.mask & raised], table_z) for r in truth]
+    pred_ext = [measure_extents(world[r.mask & raised], table_z) for r in predicted]
 
     def fbox(box: tuple[int, int, int, int]) -> tuple[float, float, float, float]:
         return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
 
     settings: dict[str, list[StaticROI]] = {
         "gt/gt": [StaticROI(fbox(r.box_xywh), r.mask, tuple(rects.get(r.label, [])) if r.label is not None
-                            else (), gt_emb[i]) for i, r in enumerate(truth)],
+                            else (), gt_emb[i], gt_ext[i]) for i, r in enumerate(truth)],
         "gt/predicted": [StaticROI(fbox(r.box_xywh), r.mask,
                                    tuple(g for g in rects.get(owner, []) if rect_centre_on(g, r.mask))
-                                   if owner is not None else (), pred_emb[i])
+                                   if owner is not None else (), pred_emb[i], pred_ext[i])
                          for i, (r, owner) in enumerate(zip(predicted, owners, strict=True))],
     }
     for b in backends:
-        settings[f"{b}/predicted"] = [StaticROI(fbox(r.box_xywh), r.mask, net[b][i], pred_emb[i])
+        settings[f"{b}/predicted"] = [StaticROI(fbox(r.box_xywh), r.mask, net[b][i], pred_emb[i], pred_ext[i])
                                       for i, r in enumerate(predicted)]
     return StaticScene(spec, obs.rgb, target.box_xywh if target is not None else None,
                        tuple(rects.get(target_body, [])), settings)
@@ -296,11 +304,11 @@ def _perturbed(
         grasps = tuple(Grasp2D(g.center_xy, g.angle_rad, g.width_px, g.length_px, float(s))
                        for g, s in zip(r.grasps, scores, strict=True))
         box = r.box if level.box_frac == 0 else tuple(float(v) for v in rb.jitter_box(r.box, level.box_frac, rng, (w, h)))
-        out.append(StaticROI(box, r.mask, grasps, r.embedding))  # type: ignore[arg-type]
+        out.append(StaticROI(box, r.mask, grasps, r.embedding, r.extents_m))  # type: ignore[arg-type]
     if level.box_frac:
         crops = [crop_box(rgb, r.box) for r in out]
         emb = encoder.embed_images(crops)
-        out = [StaticROI(r.box, r.mask, r.grasps, emb[i]) for i, r in enumerate(out)]
+        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m) for i, r in enumerate(out)]
     return out
 
 
@@ -476,7 +484,8 @@ def evaluate_static(
                     metrics={"accuracy": sum(o["success"] for o in outcomes) / n,
                              "detect": sum(o["detect"] for o in outcomes) / n,
                              "grasp": sum(c["target_grasp"] for c in cells) / n},
-                    settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma}))
+                    settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma,
+                              "size_cue": grounders[spec_m.name].size_cue_active}))
     config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
@@ -518,4 +527,5 @@ def _static_record(
 
 def _grounding_rois(rois: list[StaticROI]) -> list[ROI]:
     return [ROI(box_xywh=r.box, grasp_scores=[g.quality for g in r.grasps], grasps=list(r.grasps),
-                image_embedding=r.embedding, mask=r.mask, label=f"roi{i}") for i, r in enumerate(rois)]
+                image_embedding=r.embedding, mask=r.mask, label=f"roi{i}", extents_m=r.extents_m)
+            for i, r in enumerate(rois)]

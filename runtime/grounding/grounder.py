@@ -57,6 +57,7 @@ from .open_world import (
     parse_request,
 )
 from .settings import AffMode, GroundingSettings
+from .size_cue import size_log_likelihood, size_table, with_size_cue
 
 FloatArray = npt.NDArray[np.float32]
 GRASP_SCORE_MIN = 1e-6
@@ -331,6 +332,14 @@ class Grounder:
         self._verb_query = _unit_rows(bundle.embeddings["verb_query"])  # [V, d]
         self._verb_emb = _unit_rows(bundle.embeddings["verb"])  # [V, d]
         self.dim = int(obj_emb.shape[1])
+        self._size_table = size_table(names, bundle.sizes) if self.settings.size_cue is not False else None
+        if self.settings.size_cue is True and self._size_table is None:
+            unsized = [n for n in names if n not in bundle.sizes]
+            raise ValueError(
+                f"--size-cue: {self.kb} has no typical size for {len(unsized)} of the {len(names)} "
+                f"vocabulary objects ({', '.join(unsized[:5])}{', ...' if len(unsized) > 5 else ''}); "
+                "record them (craftc curate pending --prompt object_size) and rebuild the bundle, "
+                "or ground without the size cue")
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
 
         self._forbidden: dict[str, frozenset[str]] = {}
@@ -506,6 +515,11 @@ class Grounder:
         return self.settings.gamma
 
     @property
+    def size_cue_active(self) -> bool:
+        """Whether ``p(o | r)`` weighs measured extents (on, and every vocabulary object has a size)."""
+        return self._size_table is not None
+
+    @property
     def temperature(self) -> float:
         return self.settings.temperature
 
@@ -528,21 +542,24 @@ class Grounder:
     # -- scoring -------------------------------------------------------------------------------
 
     def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None,
-                 p_obj: npt.NDArray[Any] | None = None) -> EnergyTerms:
+                 p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None) -> EnergyTerms:
         """The three energies for ``N`` ROIs at once: ``embeddings`` ``[N, d]``, ``grasp_max``
         ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0). ``p_obj``
         ``[N, O]`` over ``vocabulary`` replaces the perceived ``p(o | r)`` (diagnostics, e.g. the
-        sim testbed's knowledge-vs-perception split with p set to the true class)."""
-        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj)
+        sim testbed's knowledge-vs-perception split with p set to the true class). ``extents``
+        ``[N, 3]`` (metres, longest first; NaN rows: unmeasured) feed the size cue when it is on."""
+        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj, extents)
 
     def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None,
-                  p_obj: npt.NDArray[Any] | None = None) -> EnergyTerms:
+                  p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None) -> EnergyTerms:
         emb = _unit_rows(embeddings)  # [N, d]
         if emb.ndim != 2 or emb.shape[1] != self.dim:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
                              f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
         if p_obj is None:
             p = object_hypotheses(emb @ self._obj_emb_t, self.temperature)  # [N, O]
+            if self._size_table is not None and extents is not None:
+                p = with_size_cue(p, size_log_likelihood(extents, self._size_table))
         else:
             p = np.asarray(p_obj, dtype=np.float32)
             if p.shape != (len(emb), len(self.vocabulary)):
@@ -580,7 +597,9 @@ class Grounder:
             emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
             gmax = np.array([rois[i].grasp_scores[g] for i, g in zip(usable, best_grasp, strict=True)], dtype=np.float32)
-            terms = self._energies(plan, emb, gmax)
+            extents = np.array([rois[i].extents_m if rois[i].extents_m is not None else (np.nan,) * 3
+                                for i in usable], dtype=np.float64)  # [N, 3]
+            terms = self._energies(plan, emb, gmax, extents=extents)
             top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
             top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once
             top_i = top.tolist()

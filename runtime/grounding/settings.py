@@ -43,6 +43,11 @@ class GroundingSettings(BaseModel):
     energy_form: EnergyForm | None = None
     open_vocab: bool = False
     vocabulary: tuple[str, ...] | None = None
+    #: p(o | r) also weighs each ROI's extents, measured from depth, against the objects' typical
+    #: sizes (``grounding/size_cue.py``). ``None`` (default): wherever it can — the bundle has a
+    #: size for every vocabulary object, and only ROIs that carry extents are affected; ``True``:
+    #: required (a bundle without the sizes is an error); ``False``: off.
+    size_cue: bool | None = None
 
     @field_validator("temperature", mode="before")
     @classmethod
@@ -78,6 +83,9 @@ class GroundingSettings(BaseModel):
 
     def energy_dict(self) -> dict[str, Any]:
         """The energy part as results store it (``"settings"`` of a grounding)."""
-        return {"alpha": self.alpha, "beta": self.beta, "gamma": self.gamma,
-                "temperature": self.temperature, "aff_mode": self.aff_mode,
-                "energy_form": self.energy_form}
+        out: dict[str, Any] = {"alpha": self.alpha, "beta": self.beta, "gamma": self.gamma,
+                               "temperature": self.temperature, "aff_mode": self.aff_mode,
+                               "energy_form": self.energy_form}
+        if self.size_cue is not None:  # only when set: results stored before the option read the same
+            out["size_cue"] = self.size_cue
+        return out

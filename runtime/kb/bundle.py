@@ -10,7 +10,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -25,6 +25,7 @@ from ...schemas.v1.bundle import (
     Manifest,
 )
 from ...schemas.v1.graph import KnowledgeGraph
+from .sizes import SIZES_FILE, SizesError, TypicalSize, parse_sizes
 from .verify import (
     MAX_FILE_BYTES,
     MAX_MANIFEST_BYTES,
@@ -64,6 +65,8 @@ class Bundle:
     embeddings: dict[str, FloatArray]  # verb [V,d], verb_query [V,d], object [O,d], property [P,d]
     report: BundleReport
     open_world: dict[str, Any] | None = None  # open_world.json (None: a bundle built before it)
+    #: object_sizes.json: typical sizes by object name (empty: none recorded, or an older bundle)
+    sizes: dict[str, TypicalSize] = field(default_factory=dict)
 
     @cached_property
     def verb_index(self) -> dict[str, int]:
@@ -139,7 +142,11 @@ def load_bundle(
     check_content(folder, manifest, energy, embeddings)
     if open_world is not None and not isinstance(open_world, dict):
         raise BundleError(f"{folder / 'open_world.json'}: not a JSON object; rebuild the bundle")
-    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world)
+    try:
+        sizes = parse_sizes(folder, data[SIZES_FILE], manifest.objects) if SIZES_FILE in data else {}
+    except SizesError as exc:
+        raise BundleError(str(exc)) from None
+    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world, sizes)
 
 
 def check_content(

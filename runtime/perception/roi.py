@@ -40,6 +40,9 @@ class ROI:
     image_embedding: FloatArray | None = None
     mask: BoolMask | None = None
     label: str | None = None
+    #: the box edges measured from depth, metres, longest first (``perception/extents.py``);
+    #: ``None``: not measured (no depth), the size cue is then neutral for this ROI
+    extents_m: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,7 @@ class LazyROI:
     fitting: list[object]  # grasps that passed the finger check, best first (opaque here)
     scores: list[float]  # their scores, parallel to ``fitting``
     heights: HeightMap | None = None  # the other objects' surfaces, for the pick's clearance check
+    extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
     next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
     verified: set[int] = field(default_factory=set)  # indices IK accepted
 
@@ -57,7 +58,7 @@ class LazyROI:
         return ROI(box_xywh=self.box_xywh,
                    grasp_scores=[self.scores[self.next_index]] if rest else [],
                    grasps=[self.fitting[self.next_index]] if rest else [],
-                   image_embedding=self.embedding, label=label)
+                   image_embedding=self.embedding, label=label, extents_m=self.extents_m)
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,7 @@ def perceive_for_pick(
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
     evaluation's path, keeps the checkpoints' layer layout so published results reproduce."""
     from ..encoders.image import crop_box, inference_encoder
+    from ..perception.extents import measure_extents
     from ..perception.segment import segment
     from .clearance import heights_around
     from .pipeline import (
@@ -145,7 +147,8 @@ def perceive_for_pick(
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
                                list(fitting), [c.quality for c in fitting],
-                               heights_around(world, raised, roi.mask, table_z, config.pick.clearance)))
+                               heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
+                               measure_extents(material, table_z)))
     return out
 
 

@@ -66,6 +66,7 @@ import pybullet as p
 from ..encoders.image import ImageEncoder
 from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
 from ..grounding.grounder import Grounder, Grounding, RankedROI
+from ..perception.extents import measure_extents
 from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
 from ..perception.segment import SegmentConfig, segment
@@ -199,6 +200,8 @@ class PerceivedROI:
     embedding: npt.NDArray[np.float32]
     body: int | None  # the scene body the mask covers most (diagnostics only, never grounding)
     target_iou: float  # box IoU with the target's ground-truth box
+    #: box edges from depth, metres, longest first (``perception/extents.py``; the size cue)
+    extents_m: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -550,11 +553,12 @@ def perceive(
                               heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
         checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude)
                    for i, s in enumerate(surfaces)]
+        extents = [measure_extents(s.material, table_z) for s in surfaces]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
         perceived.append(PerceivedROI(roi, tuple(candidates), usable,
-                                      np.asarray(embeddings[i], np.float32), body, iou))
+                                      np.asarray(embeddings[i], np.float32), body, iou, extents[i]))
     target_roi = None
     if perceived:
         best = max(range(len(perceived)), key=lambda i: (perceived[i].target_iou, -i))
@@ -591,6 +595,7 @@ def grounding_rois(perception: ScenePerception) -> list[ROI]:
             image_embedding=r.embedding,
             mask=r.roi.mask,
             label=f"roi{i}",
+            extents_m=r.extents_m,
         )
         for i, r in enumerate(perception.rois)
     ]

@@ -27,10 +27,12 @@ BUNDLE_FILES: tuple[str, ...] = (
     "affordance_energy.npy",
     "report.json",
     "open_world.json",
+    "object_sizes.json",
 )
 #: Bundle files a bundle built before they existed may lack (it still loads; the runtime then
-#: goes without what the file provides). ``open_world.json``: issue 11's open-world model.
-OPTIONAL_BUNDLE_FILES: tuple[str, ...] = ("open_world.json",)
+#: goes without what the file provides). ``open_world.json``: issue 11's open-world model;
+#: ``object_sizes.json``: the objects' typical sizes (prompt ``object_size``), for perception.
+OPTIONAL_BUNDLE_FILES: tuple[str, ...] = ("open_world.json", "object_sizes.json")
 
 
 def listed_files_ok(listed: set[str] | frozenset[str]) -> bool:

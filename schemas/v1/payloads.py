@@ -6,6 +6,7 @@ probabilities of relevance in [0, 1] as in the paper (w_vp, w_po).
 
 from __future__ import annotations
 
+from itertools import pairwise
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -165,6 +166,6 @@ class ObjectSize(_Strict):
     @field_validator("dimensions_cm")
     @classmethod
     def _longest_first(cls, value: list[float]) -> list[float]:
-        if any(a < b for a, b in zip(value, value[1:], strict=False)):
+        if any(a < b for a, b in pairwise(value)):
             raise ValueError(f"dimensions_cm must be longest first, got {value}")
         return value
