@@ -157,3 +157,26 @@ def test_a_tampered_size_file_is_refused(tmp_path: Path, kb_a: FixtureKB) -> Non
     (folder / "object_sizes.json").write_text('{"objects": {}}\n', encoding="utf-8")
     with pytest.raises(BundleError, match=r"object_sizes\.json"):
         load_bundle(folder)
+
+
+def test_the_service_takes_measured_extents() -> None:
+    from fastapi.testclient import TestClient
+
+    from craft_e.runtime.serve.app import build_service, create_app
+
+    service = build_service(KB_DIR / "craft-e-default")
+    marker = service.bundle.embeddings["object"][service.bundle.object_index["marker"]].tolist()
+    objects = ["marker", "hammer", "apple"]
+    roi = {"box_xywh": [0, 0, 5, 5], "grasp_scores": [0.9], "image_embedding": marker}
+    with TestClient(create_app(service)) as client:
+        plain = client.post("/ground", json={"verb": "hit", "rois": [roi], "objects": objects}).json()
+        sized = client.post("/ground", json={"verb": "hit", "objects": objects,
+                                             "rois": [{**roi, "extents_m": [0.035, 0.33, 0.13]}]}).json()
+        bad = client.post("/ground", json={"verb": "hit", "objects": objects,
+                                           "rois": [{**roi, "extents_m": [0.1, -0.2, 0.1]}]})
+    assert plain["size_cue_used"] is False and plain["ranked"][0]["extents_cm"] is None
+    assert sized["size_cue_used"] is True and sized["ranked"][0]["extents_cm"] == [33.0, 13.0, 3.5]
+    p_plain = {h["object"]: h["p"] for h in plain["ranked"][0]["hypotheses"]}
+    p_sized = {h["object"]: h["p"] for h in sized["ranked"][0]["hypotheses"]}
+    assert p_sized["hammer"] > p_plain["hammer"]  # a 33 cm region is more likely the hammer
+    assert bad.status_code == 422 and bad.json()["detail"][0]["loc"][-1] == "extents_m"

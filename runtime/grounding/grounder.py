@@ -125,6 +125,8 @@ class Grounding:
     notes: list[str] = field(default_factory=list)
     request: RequestMapping | None = None  # a request outside the verb list, mapped (issue 11)
     property_names: list[str] = field(default_factory=list)
+    #: p(o | r) weighed some ROI's measured extents against typical sizes (``size_cue.py``)
+    size_cue_used: bool = False
 
     @property
     def abstained(self) -> bool:
@@ -148,6 +150,7 @@ class Grounding:
                 "inferred": None if r.inference is None else r.inference.to_dict(),
                 "grasp_score": float(r.roi.grasp_scores[r.grasp_index]),
                 "hypotheses": [{"object": h.name, "p": h.probability} for h in r.hypotheses],
+                "extents_cm": None if r.roi.extents_m is None else [round(100 * v, 1) for v in r.roi.extents_m],
                 "paths": [{"property": p.prop, "object": p.obj, "w_vp": p.w_vp, "w_po": p.w_po,
                            "records": list(p.provenance)} for p in r.paths],
             }
@@ -155,6 +158,7 @@ class Grounding:
             "verb": self.verb, "kb": self.kb,
             "settings": self.settings.energy_dict(),
             "open_vocab_used": self.open_vocab_used,
+            "size_cue_used": self.size_cue_used,
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
             "abstained": self.abstained,
@@ -169,7 +173,8 @@ class Grounding:
         """A terminal report: ranking with energies, exclusions, and the chosen ROI's paths."""
         st = self.settings
         lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={st.alpha:g} beta={st.beta:g} "
-                 f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode})"]
+                 f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode}"
+                 f"{', size cue' if self.size_cue_used else ''})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -195,6 +200,9 @@ class Grounding:
         top = best.hypotheses[0].name if best.hypotheses else "?"
         lines.append(f"chosen: ROI {best.index} (box {', '.join(f'{v:g}' for v in best.roi.box_xywh)}), "
                      f"grasp #{best.grasp_index}, most likely a {top!r}")
+        if self.size_cue_used and best.roi.extents_m is not None:
+            lines.append("measured from depth: " + " x ".join(f"{100 * v:.1f}" for v in best.roi.extents_m)
+                         + " cm (the size cue weighed it against each object's typical size)")
         if best.inference is not None:
             lines.append(best.inference.describe())
         if best.paths:
@@ -593,12 +601,14 @@ class Grounder:
             else:
                 usable.append(i)
         ranked: list[RankedROI] = []
+        size_cue_used = False
         if usable:
             emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
             gmax = np.array([rois[i].grasp_scores[g] for i, g in zip(usable, best_grasp, strict=True)], dtype=np.float32)
             extents = np.array([rois[i].extents_m if rois[i].extents_m is not None else (np.nan,) * 3
                                 for i in usable], dtype=np.float64)  # [N, 3]
+            size_cue_used = self._size_table is not None and bool(np.isfinite(extents).all(axis=1).any())
             terms = self._energies(plan, emb, gmax, extents=extents)
             top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
             top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once
@@ -621,7 +631,7 @@ class Grounder:
             verb=name, ranked=ranked, excluded=excluded, kb=self.kb, settings=self.settings,
             open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
             request=plan.request, property_names=self.properties if plan.request is not None else [],
-            notes=self._open_world_notes(plan, ranked),
+            notes=self._open_world_notes(plan, ranked), size_cue_used=size_cue_used,
         )
 
     def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:

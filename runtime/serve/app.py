@@ -41,6 +41,7 @@ import binascii
 import html
 import io
 import json
+import math
 import threading
 import time
 from collections.abc import Sequence
@@ -73,6 +74,7 @@ from ..perception.roi import ROI, BoxSpec, RoiError, build_rois
 DEFAULT_MAX_ROIS = 64
 #: Grasp candidates per ROI (grasp networks keep tens of peaks; thousands means a bug upstream).
 MAX_GRASPS_PER_ROI = 1024
+MAX_EXTENT_M = 10.0  # m: a region's edge; larger is not an object a hand picks up
 #: Request bodies larger than this are refused with 413 before parsing. 64 ROIs x 384 floats as
 #: JSON is ~0.5 MB; the image endpoint needs room for a base64 photo.
 DEFAULT_MAX_BODY_BYTES = 2 * 1024 * 1024
@@ -141,6 +143,16 @@ def _check_scores(scores: list[float]) -> list[float]:
     return scores
 
 
+def _check_extents(values: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+    if values is None:
+        return None
+    if not all(math.isfinite(v) and 0.0 < v <= MAX_EXTENT_M for v in values):
+        raise ValueError(f"extents_m {list(values)}: three edges in metres, each > 0 and at most "
+                         f"{MAX_EXTENT_M:g}")
+    a, b, c = sorted(values, reverse=True)
+    return a, b, c
+
+
 class RoiIn(BaseModel):
     """One candidate region as a client sends it."""
 
@@ -155,10 +167,15 @@ class RoiIn(BaseModel):
         None, description="phi_I(r) in the bundle's text space (GET /healthz: dim); null: excluded."
     )
     label: str | None = Field(None, max_length=MAX_LABEL_CHARS, description="Echoed back.")
+    extents_m: tuple[float, float, float] | None = Field(None, description=(
+        "The region's box edges in metres, measured from depth (any order). With a scene vocabulary "
+        "(`objects`) whose every name has a typical size in the bundle, p(o | r) also weighs how "
+        "well they fit (the size cue); null: not measured."))
 
     _box = field_validator("box_xywh")(_check_box)
     _scores = field_validator("grasp_scores")(_check_scores)
     _embedding = field_validator("image_embedding")(_check_embedding)
+    _extents = field_validator("extents_m")(_check_extents)
 
 
 class GroundRequest(BaseModel):
@@ -310,7 +327,7 @@ class GroundingService:
                                    "the embedding is all zeros: no direction, no object hypothesis",
                                    "embedding_zero")
             rois.append(ROI(box_xywh=r.box_xywh, grasp_scores=list(r.grasp_scores),
-                            image_embedding=emb, label=r.label))
+                            image_embedding=emb, label=r.label, extents_m=r.extents_m))
         return rois
 
     def check_image_boxes(self, count: int) -> None:
