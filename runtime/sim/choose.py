@@ -17,9 +17,9 @@ path.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -51,9 +51,24 @@ class LazyROI:
     extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
     next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
     verified: set[int] = field(default_factory=set)  # indices IK accepted
+    #: fitting grasps not checked yet, in order (``pipeline.iter_fitting_with_refinements``):
+    #: ``fitting`` grows from it only as far as grounding needs, so an ROI whose first grasp fits
+    #: costs one finger check
+    unchecked: Iterator[Any] | None = None
+
+    def _checked_through(self, index: int) -> None:
+        """Check grasps from ``unchecked`` until ``fitting[index]`` exists or none are left."""
+        while len(self.fitting) <= index and self.unchecked is not None:
+            grasp = next(self.unchecked, None)
+            if grasp is None:
+                self.unchecked = None
+                break
+            self.fitting.append(grasp)
+            self.scores.append(float(grasp.quality))
 
     def as_roi(self, label: str) -> ROI:
         """The grounder's view: the best grasp not ruled out (none left: no grasp)."""
+        self._checked_through(self.next_index)
         rest = self.next_index < len(self.fitting)
         return ROI(box_xywh=self.box_xywh,
                    grasp_scores=[self.scores[self.next_index]] if rest else [],
@@ -114,7 +129,7 @@ def perceive_for_pick(
     from .clearance import heights_around
     from .pipeline import (
         _stage,
-        fitting_with_refinements,
+        iter_fitting_with_refinements,
         raw_candidates,
         roi_points,
         torch_threads,
@@ -143,12 +158,11 @@ def perceive_for_pick(
         raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
         for i, roi in enumerate(rois):
             material = roi_points(world, raised, roi)  # [m, 3]
-            fitting = fitting_with_refinements(raw[i], material, obs, table_z, config)
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
-                               list(fitting), [c.quality for c in fitting],
-                               heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
-                               measure_extents(material, table_z)))
+                               [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
+                               measure_extents(material, table_z),
+                               unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config)))
     return out
 
 
@@ -159,10 +173,12 @@ def pick_reachable(env: SimEnv, config: PipelineConfig, rois: Sequence[LazyROI])
     from .episode import plan_pick
     from .pipeline import GraspCandidate
 
-    heights = {id(g): r.heights for r in rois for g in r.fitting}
+    def heights_of(grasp: object) -> HeightMap | None:
+        """The clearance heights of the ROI that holds ``grasp`` (its fitting list grows lazily)."""
+        return next((r.heights for r in rois if any(g is grasp for g in r.fitting)), None)
 
     def reachable(grasp: object) -> bool:
         assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
-        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick, heights.get(id(grasp))) is None
+        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick, heights_of(grasp)) is None
 
     return reachable

@@ -323,7 +323,17 @@ def fitting_with_refinements(
     config: PipelineConfig,
 ) -> list[GraspCandidate]:
     """The grasps of ``with_refinements`` that have a pose and that the fingers fit around
-    (every one with a pose when ``config.fit_filter`` is off), in order: the robot's list.
+    (every one with a pose when ``config.fit_filter`` is off), in order: the robot's list."""
+    return list(iter_fitting_with_refinements(candidates, material, obs, table_z, config))
+
+
+def iter_fitting_with_refinements(
+    candidates: Sequence[GraspCandidate], material: FloatArray, obs: Observation, table_z: float,
+    config: PipelineConfig,
+) -> Iterator[GraspCandidate]:
+    """``fitting_with_refinements`` one grasp at a time: a grasp is checked (and refined) only
+    when the one before it has been taken, so the robot, which needs each ROI's first fitting
+    grasp, checks one or two grasps per ROI instead of all of them.
 
     Each grasp is checked once, on one ``SurfacePoints``: a network grasp's check is the one that
     decided whether to refine it, and a refinement fits by construction (``refine`` returns only
@@ -339,30 +349,30 @@ def fitting_with_refinements(
             return known
         return finger_check(surface, c.pose, tip_height(c.pose, config.pick, table_z), config.fingers)[0]
 
-    return [c for c, known in _refined(candidates, surface, obs, table_z, config) if fits(c, known)]
+    return (c for c, known in _refined(candidates, surface, obs, table_z, config) if fits(c, known))
 
 
 def _refined(
     candidates: Sequence[GraspCandidate], surface: SurfacePoints, obs: Observation, table_z: float,
     config: PipelineConfig,
-) -> list[tuple[GraspCandidate, bool | None]]:
-    """``with_refinements``' list, each grasp with whether the fingers fit around it, or None
-    where that was not checked (refinement off, or no pose)."""
+) -> Iterator[tuple[GraspCandidate, bool | None]]:
+    """``with_refinements``' grasps in order, each with whether the fingers fit around it, or
+    None where that was not checked (refinement off, or no pose); lazily."""
     from .refine import refine
 
     if not (config.refine.enabled and config.fit_filter):
-        return [(c, None) for c in candidates]
+        yield from ((c, None) for c in candidates)
+        return
 
     def tip_z_of(pose: TopDownGrasp) -> float:
         return tip_height(pose, config.pick, table_z)
 
-    out: list[tuple[GraspCandidate, bool | None]] = []
     for c in candidates:
         if c.pose is None:
-            out.append((c, None))
+            yield c, None
             continue
         fits = finger_check(surface, c.pose, tip_z_of(c.pose), config.fingers)[0]
-        out.append((c, fits))
+        yield c, fits
         if fits:
             continue
         better = refine(c.pose, surface, tip_z_of, config.fingers, config.refine)
@@ -373,8 +383,7 @@ def _refined(
                                 length_px=c.rect.length_px)
         except ValueError:
             continue
-        out.append((GraspCandidate(rect, better), True))
-    return out
+        yield GraspCandidate(rect, better), True
 
 
 def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
