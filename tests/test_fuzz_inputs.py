@@ -425,6 +425,7 @@ BUNDLE_FILE_NAMES = [
     "report.json",
     "build_info.json",
     "open_world.json",
+    "object_sizes.json",
 ]
 JSON_VALUES = st.recursive(
     st.none()
