@@ -156,6 +156,17 @@ def _added_object_effects(behaviour: list[Json], a: Bundle, b: Bundle) -> list[J
     return [out[o] for o in sorted(out)]
 
 
+def _size_diff(a: Bundle, b: Bundle) -> Json:
+    """Typical sizes (``object_sizes.json``, the size cue's knowledge) added, removed or changed."""
+    def row(name: str, bundle: Bundle) -> Json:
+        size = bundle.sizes[name]
+        return {"dimensions_cm": [round(100 * v, 2) for v in size.dimensions_m], "variability": size.variability}
+
+    changed = [{"object": n, "a": row(n, a), "b": row(n, b)} for n in sorted(set(a.sizes) & set(b.sizes))
+               if a.sizes[n] != b.sizes[n]]
+    return {**_added_removed(a.sizes, b.sizes), "changed": changed}
+
+
 def _identity(bundle: Bundle) -> Json:
     m = bundle.manifest
     return {
@@ -224,6 +235,7 @@ def diff_bundles(a: Bundle, b: Bundle, top_k: int = 5, threshold: float = 0.1) -
         "forbidden": forbidden,
         "behaviour": behaviour,
         "added_objects_ranked": _added_object_effects(behaviour, a, b),
+        "sizes": _size_diff(a, b),
         # does E_aff discriminate? (affordant/saturated shares, hubs, margins), before and after
         "diagnostics": {"a": bundle_diagnostics(a), "b": bundle_diagnostics(b)},
     }
@@ -254,6 +266,9 @@ def _summary(result: Json) -> dict[str, int]:
         1 for r in result["behaviour"] if r["order_changed"] or r["entered"] or r["left"]
     )
     counts["verbs_top1_changed"] = sum(1 for r in result["behaviour"] if r["top1_changed"])
+    counts["sizes_added"] = len(result["sizes"]["added"])
+    counts["sizes_removed"] = len(result["sizes"]["removed"])
+    counts["sizes_changed"] = len(result["sizes"]["changed"])
     return counts
 
 
@@ -466,9 +481,17 @@ def render_markdown(result: dict[str, Any]) -> str:
         ("verb → property edges", "verb_property_edges"),
         ("property → object edges", "property_object_edges"),
         ("never-pick pairs", "forbidden"),
+        ("typical sizes (size cue)", "sizes"),
     ):
         out.append(f"| {label} | {s[key + '_added']} | {s[key + '_removed']} |")
     out.append("")
+    if result["sizes"]["changed"]:
+        rows = [[_code(c["object"]),
+                 " x ".join(_fmt(v) for v in c["a"]["dimensions_cm"]) + f" cm, {c['a']['variability']}",
+                 " x ".join(_fmt(v) for v in c["b"]["dimensions_cm"]) + f" cm, {c['b']['variability']}"]
+                for c in result["sizes"]["changed"]]
+        out += _table(["object", "typical size before", "after"], rows,
+                      f"{len(rows)} typical sizes changed")
     for row in result["settings_changed"]:
         out += [
             f"⚠️ setting {_code(row['setting'])} changed: {_code(row['a'])} → {_code(row['b'])}",

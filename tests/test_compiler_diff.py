@@ -204,3 +204,24 @@ def test_markdown_stays_under_the_pr_comment_limit(base: Bundle, kb_b2: FixtureK
     assert len(markdown) < 65_536
     assert "… and 4900 more rows (see `craftc diff --format json`)" in markdown
     assert "… and 4900 more" in markdown.split("- <details><summary>Verbs removed (5000)")[1]
+
+
+def test_typical_size_changes_are_reported(base: Bundle) -> None:
+    from craft_e.runtime.kb.sizes import TypicalSize
+
+    old = dataclasses.replace(base, sizes={"knife": TypicalSize((0.26, 0.03, 0.02), "medium"),
+                                           "spoon": TypicalSize((0.18, 0.04, 0.02), "low")})
+    new = dataclasses.replace(base, sizes={"knife": TypicalSize((0.30, 0.03, 0.02), "medium"),
+                                           "bowl": TypicalSize((0.16, 0.16, 0.07), "medium")},
+                              manifest=base.manifest.model_copy(update={"content_sha256": "f" * 64}))
+    result = diff_bundles(old, new)
+    assert result["sizes"] == {
+        "added": ["bowl"], "removed": ["spoon"],
+        "changed": [{"object": "knife", "a": {"dimensions_cm": [26.0, 3.0, 2.0], "variability": "medium"},
+                     "b": {"dimensions_cm": [30.0, 3.0, 2.0], "variability": "medium"}}],
+    }
+    assert (result["summary"]["sizes_added"], result["summary"]["sizes_removed"],
+            result["summary"]["sizes_changed"]) == (1, 1, 1)
+    markdown = render_markdown(result)
+    assert "| typical sizes (size cue) | 1 | 1 |" in markdown
+    assert "| `knife` | 26 x 3 x 2 cm, medium | 30 x 3 x 2 cm, medium |" in markdown
