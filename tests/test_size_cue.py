@@ -180,3 +180,17 @@ def test_the_service_takes_measured_extents() -> None:
     p_sized = {h["object"]: h["p"] for h in sized["ranked"][0]["hypotheses"]}
     assert p_sized["hammer"] > p_plain["hammer"]  # a 33 cm region is more likely the hammer
     assert bad.status_code == 422 and bad.json()["detail"][0]["loc"][-1] == "extents_m"
+
+
+def test_cli_size_cue_without_sizes_is_a_clear_error(tmp_path: Path, kb_a: FixtureKB) -> None:
+    """``--size-cue`` over a bundle with no typical sizes exits 2 naming the fix; nothing written."""
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli.main import app
+
+    out = tmp_path / "demo"
+    result = CliRunner().invoke(app, ["sim", "demo", "--verb", "cut", "--kb", str(kb_a.bundle),
+                                      "--size-cue", "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert "no typical size" in result.output and "craftc curate pending --prompt object_size" in result.output
+    assert not out.exists()

@@ -42,6 +42,7 @@ def eval_sim(
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
+    from ..grounding.size_cue import SizeCueUnavailableError
     from ..sim.assets import SharedAssetsMissingError
     from ..sim.episode import sim_configs
     from ..sim.pipeline import PipelineConfig
@@ -65,4 +66,4 @@ def eval_sim(
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,
                                  env_config=env_config, retry=RetryConfig(retries=retries)),
         "episodes", "episodes", json_out, markdown,
-        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError))
+        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, SizeCueUnavailableError))

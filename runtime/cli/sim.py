@@ -45,6 +45,7 @@ def demo(
     )
     from ..grounding.grounder import normalize_verb_name
     from ..grounding.settings import GroundingSettings
+    from ..grounding.size_cue import SizeCueUnavailableError
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.env import SimEnv
     from ..sim.episode import sim_configs
@@ -82,9 +83,11 @@ def demo(
         fail(str(exc))
     method = bundle.manifest.kb_name
     encoder = default_encoder(threads)
-    grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)],
-                                GroundingSettings(size_cue=size_cue),
-                                sim_vocabulary())
+    try:
+        grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)],
+                                    GroundingSettings(size_cue=size_cue), sim_vocabulary())
+    except SizeCueUnavailableError as exc:
+        fail(str(exc))
     err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
               f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)
     with SimEnv(env_config) as env:

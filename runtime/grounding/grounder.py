@@ -57,7 +57,7 @@ from .open_world import (
     parse_request,
 )
 from .settings import AffMode, GroundingSettings
-from .size_cue import size_log_likelihood, size_table, with_size_cue
+from .size_cue import SizeCueUnavailableError, size_log_likelihood, size_table, with_size_cue
 
 FloatArray = npt.NDArray[np.float32]
 GRASP_SCORE_MIN = 1e-6
@@ -343,7 +343,7 @@ class Grounder:
         self._size_table = size_table(names, bundle.sizes) if self.settings.size_cue is not False else None
         if self.settings.size_cue is True and self._size_table is None:
             unsized = [n for n in names if n not in bundle.sizes]
-            raise ValueError(
+            raise SizeCueUnavailableError(
                 f"--size-cue: {self.kb} has no typical size for {len(unsized)} of the {len(names)} "
                 f"vocabulary objects ({', '.join(unsized[:5])}{', ...' if len(unsized) > 5 else ''}); "
                 "record them (craftc curate pending --prompt object_size) and rebuild the bundle, "

@@ -27,6 +27,10 @@ from ..kb.sizes import TypicalSize
 
 FloatArray = npt.NDArray[np.float32]
 
+class SizeCueUnavailableError(ValueError):
+    """``size_cue=True`` over a vocabulary the bundle has no typical size for (names them)."""
+
+
 #: Log-space spread of instances' sizes for each ``variability`` grade, fixed a priori from the
 #: prompt's wording: "within about 20 %", "within about a factor of 1.5", "a factor of 2 or more".
 SIGMA_BY_VARIABILITY: dict[str, float] = {"low": 0.2, "medium": 0.4, "high": 0.7}
