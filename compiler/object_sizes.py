@@ -14,16 +14,15 @@ import json
 from dataclasses import dataclass
 
 from ..schemas.v1.payloads import ObjectSize
+from .llm_knowledge import NO_GLOSS
 from .prompts import load_prompt
 from .sources.llm import LLMSource, PromptCall
 
 PROMPT_ID = "object_size"
-#: What the prompt says for an object whose vocabulary entry carries no gloss.
-NO_GLOSS = "its most common everyday sense"
 
 
 @dataclass(frozen=True)
-class TypicalSize:
+class RecordedSize:
     """One object's answer: box edges in centimetres (longest first) and how much it varies."""
 
     dimensions_cm: tuple[float, float, float]
@@ -40,16 +39,16 @@ def size_call(obj: str, gloss: str = "") -> PromptCall:
     return PromptCall(load_prompt(PROMPT_ID), obj, {"object": obj, "gloss": gloss or NO_GLOSS})
 
 
-def recorded_sizes(source: LLMSource, objects: list[str], glosses: dict[str, str]) -> dict[str, TypicalSize]:
+def recorded_sizes(source: LLMSource, objects: list[str], glosses: dict[str, str]) -> dict[str, RecordedSize]:
     """The recorded size of every object in ``objects`` that has one (missing ones are left out)."""
-    out: dict[str, TypicalSize] = {}
+    out: dict[str, RecordedSize] = {}
     for obj in objects:
         record = source.lookup(size_call(obj, glosses.get(obj, "")))
         if record is None:
             continue
         answer = ObjectSize.model_validate(record.payload)
         a, b, c = (float(x) for x in answer.dimensions_cm)
-        out[obj] = TypicalSize((a, b, c), answer.variability, record.key)
+        out[obj] = RecordedSize((a, b, c), answer.variability, record.key)
     return out
 
 
@@ -59,7 +58,7 @@ def pending_size_calls(source: LLMSource, objects: list[str], glosses: dict[str,
     return {o: c for o, c in calls.items() if source.lookup(c) is None}
 
 
-def sizes_json(sizes: dict[str, TypicalSize], provider: str, model: str) -> bytes:
+def sizes_json(sizes: dict[str, RecordedSize], provider: str, model: str) -> bytes:
     """``object_sizes.json``: every recorded size, by object name (sorted, byte-stable)."""
     body = {"prompt": f"{PROMPT_ID}@v1", "provider": provider, "model": model,
             "objects": {name: sizes[name].to_dict() for name in sorted(sizes)}}

@@ -38,7 +38,6 @@ if TYPE_CHECKING:
 
 LOOK_DISTANCE = 0.35  # m from the object's centre
 LOOK_ELEVATION = 45.0  # degrees above the table
-RAISED_M = 0.003  # points this far above the table are the object's (FingerConfig.height_tolerance)
 
 
 @dataclass(frozen=True)
@@ -91,10 +90,12 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
     from ..perception.extents import measure_extents
     from ..sim.assets import object_catalog
     from ..sim.camera import Camera, render
+    from ..sim.fingers import FingerGeometry
+    from ..sim.pipeline import raised_mask
     from ..sim.scene import SceneSpec, TableLayout, make_scene
 
     catalog = object_catalog()
-    camera, layout = Camera(), TableLayout()
+    camera, layout, fingers = Camera(), TableLayout(), FingerGeometry()
     sharp = camera.scaled(2)
     out: list[View] = []
     client = p.connect(p.DIRECT)
@@ -122,8 +123,8 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
                 look_mask = look.seg == body
                 crop_look = (crop_box(look.rgb, _box(look_mask)) if look_mask.any()
                              else obs.rgb[:1, :1])
-                raised = obs.points_world()[np.asarray(obs.seg == body)]
-                raised = raised[raised[:, 2] > layout.table_z + RAISED_M]
+                world = obs.points_world()
+                raised = world[(obs.seg == body) & raised_mask(world, layout.table_z, fingers.height_tolerance)]
                 out.append(View(asset, catalog[asset].name, v, crop_box(obs.rgb, box),
                                 crop_box(rgb2, tuple(2 * x for x in box)), crop_look,
                                 measure_extents(raised, layout.table_z)))

@@ -241,7 +241,7 @@ def render_scene(
     from ..sim.env import SimEnv
     from ..sim.fingers import FingerGeometry
     from ..sim.oracle import gt_rois
-    from ..sim.pipeline import majority_body, raster_order, torch_threads
+    from ..sim.pipeline import majority_body, raised_mask, raster_order, torch_threads
 
     with SimEnv(env_config) as env:
         scene = env.reset(spec.scene)
@@ -265,7 +265,7 @@ def render_scene(
     gt_emb, pred_emb = emb[: len(truth)], emb[len(truth):]
     world = obs.points_world()  # [H, W, 3]
     table_z = scene.layout.table_z
-    raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + FingerGeometry().height_tolerance
+    raised = raised_mask(world, table_z, FingerGeometry().height_tolerance)
     gt_ext = [measure_extents(world[r.mask & raised], table_z) for r in truth]
     pred_ext = [measure_extents(world[r.mask & raised], table_z) for r in predicted]
 

@@ -130,6 +130,7 @@ def perceive_for_pick(
     from .pipeline import (
         _stage,
         iter_fitting_with_refinements,
+        raised_mask,
         raw_candidates,
         roi_points,
         torch_threads,
@@ -155,7 +156,7 @@ def perceive_for_pick(
     out: list[LazyROI] = []
     with _stage(timings, "finger_checks"):
         world = obs.points_world()  # [H, W, 3]
-        raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+        raised = raised_mask(world, table_z, config.fingers.height_tolerance)
         for i, roi in enumerate(rois):
             material = roi_points(world, raised, roi)  # [m, 3]
             box = tuple(float(v) for v in roi.box_xywh)

@@ -386,6 +386,13 @@ def _refined(
         yield GraspCandidate(rect, better), True
 
 
+def raised_mask(world: FloatArray, table_z: float, tolerance: float) -> BoolMask:
+    """``[H, W]`` pixels whose point lies more than ``tolerance`` above the table (NaN: not):
+    the object surfaces the grasp checks and the size cue's extents read."""
+    out: BoolMask = np.nan_to_num(world[..., 2], nan=table_z) > table_z + tolerance
+    return out
+
+
 def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
     """The ROI's raised depth points ``[m, 3]`` (row-major order, as ``world[mask & raised]``),
     gathered inside its box only: the grasp checks need them for every ROI."""
@@ -556,7 +563,7 @@ def perceive(
     perceived: list[PerceivedROI] = []
     with _stage(timings, "grasp_checks"):
         world = obs.points_world()  # [H, W, 3]
-        raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+        raised = raised_mask(world, table_z, config.fingers.height_tolerance)
         clear = config.pick.clearance
         surfaces = [_Surfaces(roi_points(world, raised, roi), table_z,
                               heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
