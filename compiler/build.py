@@ -53,6 +53,7 @@ from .llm_knowledge import (
     direct_llm_draft,
     llm_property_draft,
 )
+from .object_colours import colours_json, recorded_colours
 from .object_sizes import recorded_sizes, sizes_json
 from .prompts import DEFAULT_PROMPT_VERSION
 from .rdf import graph_turtle
@@ -234,11 +235,11 @@ def build(
 
     open_world = fit_open_world(load_safetensors(embeddings_blob)["object"], w_po, tau=config.tau)
     # perception knowledge: the objects' typical sizes, where a record gives one (never asked for)
-    sizes = recorded_sizes(
-        LLMSource(cache=cache, provider=config.provider, model=config.model),
-        draft.objects, objects.glosses,
-    )
+    perception_source = LLMSource(cache=cache, provider=config.provider, model=config.model)
+    sizes = recorded_sizes(perception_source, draft.objects, objects.glosses)
     draft.count("object_sizes", "objects with a typical size", len(sizes))
+    colours = recorded_colours(perception_source, draft.objects, objects.glosses)
+    draft.count("object_colours", "objects with typical colours", len(colours))
     report = BundleReport(
         kb_name=config.name,
         counts={
@@ -267,6 +268,7 @@ def build(
         ).encode(),
         "open_world.json": open_world_json(open_world),
         "object_sizes.json": sizes_json(sizes, config.provider, config.model),
+        "object_colours.json": colours_json(colours, config.provider, config.model),
     }
     digests = {name: file_digest(data) for name, data in files.items()}
     manifest = Manifest(

@@ -568,7 +568,7 @@ def curate_record(
     prompt: Annotated[
         str,
         typer.Option(
-            help="verb_properties | object_properties | property_objects | verb_objects | object_size"
+            help="verb_properties | object_properties | property_objects | verb_objects | object_size | object_colour"
         ),
     ],
     answers: Annotated[Path, typer.Option(help="JSONL file: one answer payload per line.")],
@@ -619,7 +619,8 @@ def curate_pending(
         str,
         typer.Option(
             help="object_properties (stage 2) | property_objects (stage 2b) | verb_objects "
-            "(direct) | verb_properties (stage 1) | object_size (typical sizes, for perception)."
+            "(direct) | verb_properties (stage 1) | object_size (typical sizes, for perception) | "
+            "object_colour (typical colours, for perception)."
         ),
     ] = "object_properties",
 ) -> None:
@@ -627,6 +628,7 @@ def curate_pending(
     prompt), as JSON."""
     from .cache import RecordCache
     from .curate import (
+        pending_colour_requests,
         pending_direct_requests,
         pending_object_requests,
         pending_property_requests,
@@ -645,6 +647,7 @@ def curate_pending(
             "verb_objects": pending_direct_requests,
             "verb_properties": pending_verb_requests,
             "object_size": pending_size_requests,
+            "object_colour": pending_colour_requests,
         }
         if prompt not in listers:
             fail(f"unknown prompt {prompt!r}; choose one of {', '.join(listers)}")

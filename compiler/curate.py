@@ -17,6 +17,7 @@ from pydantic import ValidationError
 
 from ..schemas.names import normalize_name, normalize_property, normalize_verb
 from ..schemas.v1.payloads import (
+    ObjectColour,
     ObjectProperties,
     ObjectSize,
     PropertyObjects,
@@ -33,10 +34,17 @@ from .llm_knowledge import (
     read_verb_properties,
     verb_call,
 )
+from .object_colours import PROMPT_ID as COLOUR_PROMPT_ID
 from .object_sizes import PROMPT_ID as SIZE_PROMPT_ID
-from .object_sizes import pending_size_calls
+from .per_object_prompts import pending_object_calls
 from .prompts import DEFAULT_PROMPT_VERSION
 from .sources.llm import LLM_SOURCE, LLMSource, PromptCall
+
+#: Prompts asked once per object (perception knowledge) and the payload each answer must fit.
+PER_OBJECT_PROMPTS: dict[str, type[ObjectSize] | type[ObjectColour]] = {
+    SIZE_PROMPT_ID: ObjectSize,
+    COLOUR_PROMPT_ID: ObjectColour,
+}
 
 
 class CurationError(ValueError):
@@ -120,8 +128,8 @@ def record_answers(
         properties, definitions = _stage1_properties(source, verbs, version, senses)
         _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
         pending = {c.subject: c for c in calls}
-    elif prompt_id == SIZE_PROMPT_ID:
-        pending = pending_size_calls(source, objects, glosses or {})
+    elif prompt_id in PER_OBJECT_PROMPTS:
+        pending = pending_object_calls(prompt_id, source, objects, glosses or {})
     for lineno, row in _read_answers(answers):
         where = f"{answers}:{lineno}"
         try:
@@ -198,14 +206,14 @@ def record_answers(
                     raise CurationError(
                         f"{where}: ranking names objects not offered: {outside[:5]}"
                     )
-            elif prompt_id == SIZE_PROMPT_ID:
-                size = ObjectSize.model_validate(row)
-                payload = size.model_dump(mode="json")
-                obj = normalize_name(size.object, singularize=False)
+            elif prompt_id in PER_OBJECT_PROMPTS:
+                answer = PER_OBJECT_PROMPTS[prompt_id].model_validate(row)
+                payload = answer.model_dump(mode="json")
+                obj = normalize_name(str(answer.object), singularize=False)
                 if obj not in pending:
                     result.skipped.append(
-                        f"{where}: {obj!r} has no pending size request (already recorded or not "
-                        "in the objects file)"
+                        f"{where}: {obj!r} has no pending {prompt_id} request (already recorded "
+                        "or not in the objects file)"
                     )
                     continue
                 call = pending[obj]
@@ -342,6 +350,21 @@ def pending_verb_requests(
     ]
 
 
+def _pending_per_object_requests(
+    prompt_id: str, source: LLMSource, objects: list[str], glosses: dict[str, str] | None
+) -> list[dict[str, object]]:
+    """``prompt_id`` prompts (one per object) still to answer: object, gloss, rendered prompt."""
+    calls = pending_object_calls(prompt_id, source, objects, glosses or {})
+    return [
+        {
+            "object": c.subject,
+            "gloss": str(c.variables["gloss"]),
+            "prompt": c.template.render(**c.variables)[1].content,
+        }
+        for c in calls.values()
+    ]
+
+
 def pending_size_requests(
     source: LLMSource,
     verbs: list[str],
@@ -353,12 +376,18 @@ def pending_size_requests(
 ) -> list[dict[str, object]]:
     """Size prompts still to answer: object (+ gloss) and the rendered prompt."""
     del verbs, version, verb_glosses  # one version; sizes name no verbs or properties
-    calls = pending_size_calls(source, objects, glosses or {})
-    return [
-        {
-            "object": c.subject,
-            "gloss": str(c.variables["gloss"]),
-            "prompt": c.template.render(**c.variables)[1].content,
-        }
-        for c in calls.values()
-    ]
+    return _pending_per_object_requests(SIZE_PROMPT_ID, source, objects, glosses)
+
+
+def pending_colour_requests(
+    source: LLMSource,
+    verbs: list[str],
+    objects: list[str],
+    *,
+    version: str = DEFAULT_PROMPT_VERSION,
+    glosses: dict[str, str] | None = None,
+    verb_glosses: dict[str, str] | None = None,
+) -> list[dict[str, object]]:
+    """Colour prompts still to answer: object (+ gloss) and the rendered prompt."""
+    del verbs, version, verb_glosses  # one version; colours name no verbs or properties
+    return _pending_per_object_requests(COLOUR_PROMPT_ID, source, objects, glosses)

@@ -167,6 +167,17 @@ def _size_diff(a: Bundle, b: Bundle) -> Json:
     return {**_added_removed(a.sizes, b.sizes), "changed": changed}
 
 
+def _colour_diff(a: Bundle, b: Bundle) -> Json:
+    """Typical colours (``object_colours.json``, the colour cue's knowledge) added, removed or changed."""
+    def row(name: str, bundle: Bundle) -> Json:
+        entry = bundle.colours[name]
+        return {"colours": dict(entry.shares), "variability": entry.variability}
+
+    changed = [{"object": n, "a": row(n, a), "b": row(n, b)} for n in sorted(set(a.colours) & set(b.colours))
+               if a.colours[n] != b.colours[n]]
+    return {**_added_removed(a.colours, b.colours), "changed": changed}
+
+
 def _identity(bundle: Bundle) -> Json:
     m = bundle.manifest
     return {
@@ -236,6 +247,7 @@ def diff_bundles(a: Bundle, b: Bundle, top_k: int = 5, threshold: float = 0.1) -
         "behaviour": behaviour,
         "added_objects_ranked": _added_object_effects(behaviour, a, b),
         "sizes": _size_diff(a, b),
+        "colours": _colour_diff(a, b),
         # does E_aff discriminate? (affordant/saturated shares, hubs, margins), before and after
         "diagnostics": {"a": bundle_diagnostics(a), "b": bundle_diagnostics(b)},
     }
@@ -269,6 +281,9 @@ def _summary(result: Json) -> dict[str, int]:
     counts["sizes_added"] = len(result["sizes"]["added"])
     counts["sizes_removed"] = len(result["sizes"]["removed"])
     counts["sizes_changed"] = len(result["sizes"]["changed"])
+    counts["colours_added"] = len(result["colours"]["added"])
+    counts["colours_removed"] = len(result["colours"]["removed"])
+    counts["colours_changed"] = len(result["colours"]["changed"])
     return counts
 
 
@@ -482,6 +497,7 @@ def render_markdown(result: dict[str, Any]) -> str:
         ("property → object edges", "property_object_edges"),
         ("never-pick pairs", "forbidden"),
         ("typical sizes (size cue)", "sizes"),
+        ("typical colours (colour cue)", "colours"),
     ):
         out.append(f"| {label} | {s[key + '_added']} | {s[key + '_removed']} |")
     out.append("")
@@ -492,6 +508,13 @@ def render_markdown(result: dict[str, Any]) -> str:
                 for c in result["sizes"]["changed"]]
         out += _table(["object", "typical size before", "after"], rows,
                       f"{len(rows)} typical sizes changed")
+    if result["colours"]["changed"]:
+        def shown(entry: Json) -> str:
+            return ", ".join(f"{t} {_fmt(v)}" for t, v in entry["colours"].items()) + f"; {entry['variability']}"
+
+        rows = [[_code(c["object"]), shown(c["a"]), shown(c["b"])] for c in result["colours"]["changed"]]
+        out += _table(["object", "typical colours before", "after"], rows,
+                      f"{len(rows)} typical colours changed")
     for row in result["settings_changed"]:
         out += [
             f"⚠️ setting {_code(row['setting'])} changed: {_code(row['a'])} → {_code(row['b'])}",

@@ -14,8 +14,7 @@ import json
 from dataclasses import dataclass
 
 from ..schemas.v1.payloads import ObjectSize
-from .llm_knowledge import NO_GLOSS
-from .prompts import load_prompt
+from .per_object_prompts import object_call, pending_object_calls
 from .sources.llm import LLMSource, PromptCall
 
 PROMPT_ID = "object_size"
@@ -36,7 +35,7 @@ class RecordedSize:
 
 def size_call(obj: str, gloss: str = "") -> PromptCall:
     """The ``object_size@v1`` prompt for ``obj`` read in the sense of ``gloss``."""
-    return PromptCall(load_prompt(PROMPT_ID), obj, {"object": obj, "gloss": gloss or NO_GLOSS})
+    return object_call(PROMPT_ID, obj, gloss)
 
 
 def recorded_sizes(source: LLMSource, objects: list[str], glosses: dict[str, str]) -> dict[str, RecordedSize]:
@@ -54,8 +53,7 @@ def recorded_sizes(source: LLMSource, objects: list[str], glosses: dict[str, str
 
 def pending_size_calls(source: LLMSource, objects: list[str], glosses: dict[str, str]) -> dict[str, PromptCall]:
     """Size prompts of ``objects`` that no record answers yet, by object name."""
-    calls = {o: size_call(o, glosses.get(o, "")) for o in objects}
-    return {o: c for o, c in calls.items() if source.lookup(c) is None}
+    return pending_object_calls(PROMPT_ID, source, objects, glosses)
 
 
 def sizes_json(sizes: dict[str, RecordedSize], provider: str, model: str) -> bytes:

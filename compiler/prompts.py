@@ -21,6 +21,7 @@ from typing import Any, Literal
 from pydantic import BaseModel
 
 from ..schemas.v1.payloads import (
+    ObjectColour,
     ObjectProperties,
     ObjectSize,
     PropertyObjects,
@@ -39,6 +40,7 @@ PAYLOADS: dict[str, type[BaseModel]] = {
     "verb_objects": VerbObjects,
     "property_objects": PropertyObjects,
     "object_size": ObjectSize,
+    "object_colour": ObjectColour,
 }
 #: Payload models whose shape changed with a prompt version (``<id>@<version>``).
 VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {
@@ -56,6 +58,7 @@ DEFAULT_VERSIONS = {
     "verb_objects": DEFAULT_PROMPT_VERSION,
     "property_objects": "v1",
     "object_size": "v1",
+    "object_colour": "v1",
 }
 _SECTION = re.compile(r"^## (system|user)\s*$", re.MULTILINE)
 

@@ -225,3 +225,24 @@ def test_typical_size_changes_are_reported(base: Bundle) -> None:
     markdown = render_markdown(result)
     assert "| typical sizes (size cue) | 1 | 1 |" in markdown
     assert "| `knife` | 26 x 3 x 2 cm, medium | 30 x 3 x 2 cm, medium |" in markdown
+
+
+def test_typical_colour_changes_are_reported(base: Bundle) -> None:
+    from craft_e.runtime.kb.colours import TypicalColours
+
+    old = dataclasses.replace(base, colours={"knife": TypicalColours((("grey", 0.7),), "medium"),
+                                             "spoon": TypicalColours((("grey", 0.9),), "low")})
+    new = dataclasses.replace(base, colours={"knife": TypicalColours((("black", 0.3), ("grey", 0.6)), "medium"),
+                                             "bowl": TypicalColours((("white", 0.9),), "high")},
+                              manifest=base.manifest.model_copy(update={"content_sha256": "f" * 64}))
+    result = diff_bundles(old, new)
+    assert result["colours"] == {
+        "added": ["bowl"], "removed": ["spoon"],
+        "changed": [{"object": "knife", "a": {"colours": {"grey": 0.7}, "variability": "medium"},
+                     "b": {"colours": {"black": 0.3, "grey": 0.6}, "variability": "medium"}}],
+    }
+    assert (result["summary"]["colours_added"], result["summary"]["colours_removed"],
+            result["summary"]["colours_changed"]) == (1, 1, 1)
+    markdown = render_markdown(result)
+    assert "| typical colours (colour cue) | 1 | 1 |" in markdown
+    assert "| `knife` | grey 0.7; medium | black 0.3, grey 0.6; medium |" in markdown

@@ -426,6 +426,7 @@ BUNDLE_FILE_NAMES = [
     "build_info.json",
     "open_world.json",
     "object_sizes.json",
+    "object_colours.json",
 ]
 JSON_VALUES = st.recursive(
     st.none()

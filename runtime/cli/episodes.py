@@ -53,6 +53,11 @@ SizeCueOpt = Annotated[bool | None, typer.Option(
     help="Weigh p(o|r) by how well each ROI's extents, measured from depth, fit the objects' typical sizes "
          "(the bundle's object_sizes.json; grounding/size_cue.py). Default: on wherever every vocabulary "
          "object has a size; --size-cue requires it.", show_default=False)]
+ColourCueOpt = Annotated[bool | None, typer.Option(
+    "--colour-cue/--no-colour-cue",
+    help="Weigh p(o|r) by how well each ROI's colours fit the objects' typical colours (the bundle's "
+         "object_colours.json; grounding/colour_cue.py). Opt-in (off by default: it lowered Detect on the "
+         "dev episodes, docs/recognition.md); --colour-cue requires colours for every vocabulary object.", show_default=False)]
 ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
                                                  "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 

@@ -39,10 +39,11 @@ def eval_sim(
     retries: ep.RetriesOpt = 0,
     prefer_clear: ep.PreferClearOpt = False,
     size_cue: ep.SizeCueOpt = None,
+    colour_cue: ep.ColourCueOpt = None,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
-    from ..grounding.size_cue import SizeCueUnavailableError
+    from ..grounding.size_cue import CueUnavailableError
     from ..sim.assets import SharedAssetsMissingError
     from ..sim.episode import sim_configs
     from ..sim.pipeline import PipelineConfig
@@ -60,10 +61,11 @@ def eval_sim(
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir)
-    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue)
+    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
+                                  colour_cue=colour_cue)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,
                                  env_config=env_config, retry=RetryConfig(retries=retries)),
         "episodes", "episodes", json_out, markdown,
-        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, SizeCueUnavailableError))
+        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, CueUnavailableError))

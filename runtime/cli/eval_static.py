@@ -31,6 +31,7 @@ def eval_static(
     aff_mode: AffModeOpt = "expected",
     jobs: ep.JobsOpt = 1,
     size_cue: ep.SizeCueOpt = None,
+    colour_cue: ep.ColourCueOpt = None,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from ...paths import SIM_DEV_LABELS
@@ -45,7 +46,8 @@ def eval_static(
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir)
-    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue)
+    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
+                                  colour_cue=colour_cue)
     ep.run_with_progress(
         lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,

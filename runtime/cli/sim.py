@@ -31,6 +31,7 @@ def demo(
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
     size_cue: ep.SizeCueOpt = None,
+    colour_cue: ep.ColourCueOpt = None,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -45,7 +46,7 @@ def demo(
     )
     from ..grounding.grounder import normalize_verb_name
     from ..grounding.settings import GroundingSettings
-    from ..grounding.size_cue import SizeCueUnavailableError
+    from ..grounding.size_cue import CueUnavailableError
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.env import SimEnv
     from ..sim.episode import sim_configs
@@ -85,8 +86,9 @@ def demo(
     encoder = default_encoder(threads)
     try:
         grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)],
-                                    GroundingSettings(size_cue=size_cue), sim_vocabulary())
-    except SizeCueUnavailableError as exc:
+                                    GroundingSettings(size_cue=size_cue,
+                                  colour_cue=colour_cue), sim_vocabulary())
+    except CueUnavailableError as exc:
         fail(str(exc))
     err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
               f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)

@@ -52,6 +52,8 @@ class View:
     crop_look: npt.NDArray[np.uint8]
     #: box edges from the overhead depth of the asset's raised points (``perception/extents.py``)
     extents_m: tuple[float, float, float] | None = None
+    #: colour shares of the same raised pixels in the overhead colour image (``perception/colours.py``)
+    colours: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,7 @@ class Setting:
     preprocess: str = "center"
     tta: int = 1
     size_cue: bool = False
+    colour_cue: bool = False
 
 
 SETTINGS: tuple[Setting, ...] = (
@@ -73,6 +76,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("overhead + active look", "mean embedding of the 2x fit view and the look (fit)", "fused", "fit"),
     Setting("2x fit + size cue", "2x, fit; p(o|r) weighed by the depth extents' fit to each name's "
             "typical size (object_sizes.json)", "2x", "fit", size_cue=True),
+    Setting("2x fit + colour cue", "2x, fit; p(o|r) weighed by the ROI's colour shares' fit to each "
+            "name's typical colours (object_colours.json)", "2x", "fit", colour_cue=True),
+    Setting("2x fit + size + colour cue", "2x, fit; both cues", "2x", "fit", size_cue=True, colour_cue=True),
 )
 
 
@@ -87,6 +93,7 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
     import pybullet as p
 
     from ..encoders.image import crop_box
+    from ..perception.colours import measure_colours
     from ..perception.extents import measure_extents
     from ..sim.assets import object_catalog
     from ..sim.camera import Camera, render
@@ -124,10 +131,11 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
                 crop_look = (crop_box(look.rgb, _box(look_mask)) if look_mask.any()
                              else obs.rgb[:1, :1])
                 world = obs.points_world()
-                raised = world[(obs.seg == body) & raised_mask(world, layout.table_z, fingers.height_tolerance)]
+                surface = (obs.seg == body) & raised_mask(world, layout.table_z, fingers.height_tolerance)
                 out.append(View(asset, catalog[asset].name, v, crop_box(obs.rgb, box),
                                 crop_box(rgb2, tuple(2 * x for x in box)), crop_look,
-                                measure_extents(raised, layout.table_z)))
+                                measure_extents(world[surface], layout.table_z),
+                                measure_colours(obs.rgb[surface])))
             if progress is not None:
                 progress(n + 1, len(assets))
     finally:
@@ -162,9 +170,10 @@ class RecognitionReport:
 
 
 def _ranks(grounder: Grounder, emb: npt.NDArray[np.float32], names: Sequence[str],
-           extents: npt.NDArray[np.float64] | None = None) -> npt.NDArray[np.int64]:
+           extents: npt.NDArray[np.float64] | None = None,
+           colours: npt.NDArray[np.float64] | None = None) -> npt.NDArray[np.int64]:
     """Rank (0 = top) of each view's true name under p(o|r)."""
-    p = grounder.energies(grounder.verbs[0], emb, extents=extents).p_obj  # [N, O]; the verb does not enter p
+    p = grounder.energies(grounder.verbs[0], emb, extents=extents, colours=colours).p_obj  # [N, O]; the verb does not enter p
     cols = [grounder.vocabulary.index(n) for n in names]
     true = p[np.arange(len(names)), cols]
     return np.asarray((p > true[:, None]).sum(axis=1), dtype=np.int64)
@@ -180,15 +189,19 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     from ..grounding.grounder import Grounder
     from ..grounding.settings import GroundingSettings
     from ..kb.bundle import load_bundle
+    from ..kb.colours import COLOUR_TERMS
     from ..sim.assets import object_catalog
     from ..sim.pipeline import sim_vocabulary
 
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
-    grounder = Grounder(bundle, GroundingSettings(vocabulary=list(sim_vocabulary())))
-    sized = Grounder(bundle, GroundingSettings(vocabulary=list(sim_vocabulary()), size_cue=True))
+    grounders = {(size, colour): Grounder(bundle, GroundingSettings(
+        vocabulary=list(sim_vocabulary()), size_cue=size, colour_cue=colour))
+        for size in (False, True) for colour in (False, True)}
+    grounder = grounders[(False, False)]
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
+    colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     names = [v.name for v in rendered]
     encoders: dict[tuple[str, int], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
@@ -212,7 +225,8 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
                 emb = np.asarray(enc.embed_images([getattr(v, attr) for v in rendered]), dtype=np.float32)
                 rois = len(rendered)
             ms = 1000 * (time.perf_counter() - start) / rois
-            ranks = _ranks(sized, emb, names, extents) if s.size_cue else _ranks(grounder, emb, names)
+            ranks = _ranks(grounders[(s.size_cue, s.colour_cue)], emb, names, extents if s.size_cue else None,
+                           colours if s.colour_cue else None)
             rows.append({"setting": s.name, "description": s.description, "source": s.source,
                          "preprocess": s.preprocess, "tta": s.tta, "encoder_id": enc.id,
                          "top1": round(float(np.mean(ranks == 0)), 6),

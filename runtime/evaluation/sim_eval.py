@@ -548,7 +548,9 @@ def evaluate_sim(
         row = summarize(spec_m.name, spec_m.description, records,
                         {"bundle": str(spec_m.bundle), "kb": grounder.kb, "beta": spec_m.beta,
                          "gamma": spec_m.gamma, "alpha": grounder.alpha, "energy_form": grounder.energy_form,
-                         "aff_mode": grounder.aff_mode, "size_cue": grounder.size_cue_active})
+                         "aff_mode": grounder.aff_mode, "size_cue": grounder.size_cue_active,
+                         # only when on: results stored before the cue existed read the same
+                         **({"colour_cue": True} if grounder.colour_cue_active else {})})
         open_vocab = sorted(v for v in labels.verbs if not grounder.knows_verb(v))
         if open_vocab:
             row.notes.append("verbs not in the KB, grounded with the open-vocabulary fallback: "

@@ -212,6 +212,7 @@ class StaticROI:
     grasps: tuple[Grasp2D, ...]
     embedding: Embedding
     extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
+    colours: tuple[float, ...] | None = None  # colour shares of its raised pixels, for the colour cue
 
 
 @dataclass(frozen=True)
@@ -236,6 +237,7 @@ def render_scene(
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
     from ..encoders.image import crop_box
     from ..grasp.predict import predict_grasps_rois
+    from ..perception.colours import measure_colours
     from ..perception.extents import measure_extents
     from ..perception.segment import segment
     from ..sim.env import SimEnv
@@ -268,20 +270,23 @@ def render_scene(
     raised = raised_mask(world, table_z, FingerGeometry().height_tolerance)
     gt_ext = [measure_extents(world[r.mask & raised], table_z) for r in truth]
     pred_ext = [measure_extents(world[r.mask & raised], table_z) for r in predicted]
+    gt_col = [measure_colours(obs.rgb[r.mask & raised]) for r in truth]
+    pred_col = [measure_colours(obs.rgb[r.mask & raised]) for r in predicted]
 
     def fbox(box: tuple[int, int, int, int]) -> tuple[float, float, float, float]:
         return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
 
     settings: dict[str, list[StaticROI]] = {
         "gt/gt": [StaticROI(fbox(r.box_xywh), r.mask, tuple(rects.get(r.label, [])) if r.label is not None
-                            else (), gt_emb[i], gt_ext[i]) for i, r in enumerate(truth)],
+                            else (), gt_emb[i], gt_ext[i], gt_col[i]) for i, r in enumerate(truth)],
         "gt/predicted": [StaticROI(fbox(r.box_xywh), r.mask,
                                    tuple(g for g in rects.get(owner, []) if rect_centre_on(g, r.mask))
-                                   if owner is not None else (), pred_emb[i], pred_ext[i])
+                                   if owner is not None else (), pred_emb[i], pred_ext[i], pred_col[i])
                          for i, (r, owner) in enumerate(zip(predicted, owners, strict=True))],
     }
     for b in backends:
-        settings[f"{b}/predicted"] = [StaticROI(fbox(r.box_xywh), r.mask, net[b][i], pred_emb[i], pred_ext[i])
+        settings[f"{b}/predicted"] = [StaticROI(fbox(r.box_xywh), r.mask, net[b][i], pred_emb[i], pred_ext[i],
+                                                pred_col[i])
                                       for i, r in enumerate(predicted)]
     return StaticScene(spec, obs.rgb, target.box_xywh if target is not None else None,
                        tuple(rects.get(target_body, [])), settings)
@@ -304,11 +309,11 @@ def _perturbed(
         grasps = tuple(Grasp2D(g.center_xy, g.angle_rad, g.width_px, g.length_px, float(s))
                        for g, s in zip(r.grasps, scores, strict=True))
         box = r.box if level.box_frac == 0 else tuple(float(v) for v in rb.jitter_box(r.box, level.box_frac, rng, (w, h)))
-        out.append(StaticROI(box, r.mask, grasps, r.embedding, r.extents_m))  # type: ignore[arg-type]
+        out.append(StaticROI(box, r.mask, grasps, r.embedding, r.extents_m, r.colours))  # type: ignore[arg-type]
     if level.box_frac:
         crops = [crop_box(rgb, r.box) for r in out]
         emb = encoder.embed_images(crops)
-        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m) for i, r in enumerate(out)]
+        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m, r.colours) for i, r in enumerate(out)]
     return out
 
 
@@ -485,7 +490,8 @@ def evaluate_static(
                              "detect": sum(o["detect"] for o in outcomes) / n,
                              "grasp": sum(c["target_grasp"] for c in cells) / n},
                     settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma,
-                              "size_cue": grounders[spec_m.name].size_cue_active}))
+                              "size_cue": grounders[spec_m.name].size_cue_active,
+                              **({"colour_cue": True} if grounders[spec_m.name].colour_cue_active else {})}))
     config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
@@ -527,5 +533,6 @@ def _static_record(
 
 def _grounding_rois(rois: list[StaticROI]) -> list[ROI]:
     return [ROI(box_xywh=r.box, grasp_scores=[g.quality for g in r.grasps], grasps=list(r.grasps),
-                image_embedding=r.embedding, mask=r.mask, label=f"roi{i}", extents_m=r.extents_m)
+                image_embedding=r.embedding, mask=r.mask, label=f"roi{i}", extents_m=r.extents_m,
+                colours=r.colours)
             for i, r in enumerate(rois)]

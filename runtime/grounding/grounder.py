@@ -30,7 +30,14 @@ import numpy.typing as npt
 
 from ..encoders.base import TextEncoder
 from ..kb.bundle import Bundle, PathStep
+from ..kb.colours import COLOUR_TERMS
 from ..perception.roi import ROI
+from .colour_cue import (
+    ColourCueUnavailableError,
+    colour_log_likelihood,
+    colour_table,
+    with_colour_cue,
+)
 from .energies import (
     FORBIDDEN_ENERGY,
     EnergyForm,
@@ -127,6 +134,8 @@ class Grounding:
     property_names: list[str] = field(default_factory=list)
     #: p(o | r) weighed some ROI's measured extents against typical sizes (``size_cue.py``)
     size_cue_used: bool = False
+    #: p(o | r) weighed some ROI's colours against typical colours (``colour_cue.py``)
+    colour_cue_used: bool = False
 
     @property
     def abstained(self) -> bool:
@@ -151,6 +160,7 @@ class Grounding:
                 "grasp_score": float(r.roi.grasp_scores[r.grasp_index]),
                 "hypotheses": [{"object": h.name, "p": h.probability} for h in r.hypotheses],
                 "extents_cm": None if r.roi.extents_m is None else [round(100 * v, 1) for v in r.roi.extents_m],
+                "colours": None if r.roi.colours is None else _named_colours(r.roi.colours),
                 "paths": [{"property": p.prop, "object": p.obj, "w_vp": p.w_vp, "w_po": p.w_po,
                            "records": list(p.provenance)} for p in r.paths],
             }
@@ -159,6 +169,7 @@ class Grounding:
             "settings": self.settings.energy_dict(),
             "open_vocab_used": self.open_vocab_used,
             "size_cue_used": self.size_cue_used,
+            "colour_cue_used": self.colour_cue_used,
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
             "abstained": self.abstained,
@@ -174,7 +185,7 @@ class Grounding:
         st = self.settings
         lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={st.alpha:g} beta={st.beta:g} "
                  f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode}"
-                 f"{', size cue' if self.size_cue_used else ''})"]
+                 f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -203,6 +214,10 @@ class Grounding:
         if self.size_cue_used and best.roi.extents_m is not None:
             lines.append("measured from depth: " + " x ".join(f"{100 * v:.1f}" for v in best.roi.extents_m)
                          + " cm (the size cue weighed it against each object's typical size)")
+        if self.colour_cue_used and best.roi.colours is not None:
+            seen = ", ".join(f"{t} {100 * v:.0f} %" for t, v in _named_colours(best.roi.colours).items())
+            lines.append(f"colours seen: {seen} (the colour cue weighed them against each object's "
+                         "typical colours)")
         if best.inference is not None:
             lines.append(best.inference.describe())
         if best.paths:
@@ -237,6 +252,12 @@ class _VerbPlan:
     nearest: list[tuple[str, float]]
     forbidden: frozenset[str]
     request: RequestMapping | None = None
+
+
+def _named_colours(shares: Sequence[float]) -> dict[str, float]:
+    """An ROI's colour shares by term, largest first, terms under 5 % left out (for display)."""
+    named = sorted(zip(COLOUR_TERMS, shares, strict=True), key=lambda tv: -tv[1])
+    return {t: round(float(v), 3) for t, v in named if v >= 0.05}
 
 
 def _unit_rows(x: npt.NDArray[Any]) -> FloatArray:
@@ -348,6 +369,14 @@ class Grounder:
                 f"vocabulary objects ({', '.join(unsized[:5])}{', ...' if len(unsized) > 5 else ''}); "
                 "record them (craftc curate pending --prompt object_size) and rebuild the bundle, "
                 "or ground without the size cue")
+        self._colour_table = colour_table(names, bundle.colours) if self.settings.colour_cue is True else None
+        if self.settings.colour_cue is True and self._colour_table is None:
+            missing = [n for n in names if n not in bundle.colours]
+            raise ColourCueUnavailableError(
+                f"--colour-cue: {self.kb} has no typical colours for {len(missing)} of the {len(names)} "
+                f"vocabulary objects ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}); "
+                "record them (craftc curate pending --prompt object_colour) and rebuild the bundle, "
+                "or ground without the colour cue")
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
 
         self._forbidden: dict[str, frozenset[str]] = {}
@@ -528,6 +557,11 @@ class Grounder:
         return self._size_table is not None
 
     @property
+    def colour_cue_active(self) -> bool:
+        """Whether ``p(o | r)`` weighs measured colours (on, and every vocabulary object has them)."""
+        return self._colour_table is not None
+
+    @property
     def temperature(self) -> float:
         return self.settings.temperature
 
@@ -550,16 +584,20 @@ class Grounder:
     # -- scoring -------------------------------------------------------------------------------
 
     def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None,
-                 p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None) -> EnergyTerms:
+                 p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
+                 colours: npt.NDArray[Any] | None = None) -> EnergyTerms:
         """The three energies for ``N`` ROIs at once: ``embeddings`` ``[N, d]``, ``grasp_max``
         ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0). ``p_obj``
         ``[N, O]`` over ``vocabulary`` replaces the perceived ``p(o | r)`` (diagnostics, e.g. the
         sim testbed's knowledge-vs-perception split with p set to the true class). ``extents``
-        ``[N, 3]`` (metres, longest first; NaN rows: unmeasured) feed the size cue when it is on."""
-        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj, extents)
+        ``[N, 3]`` (metres, longest first; NaN rows: unmeasured) feed the size cue when it is on,
+        ``colours`` ``[N, 11]`` (shares per colour term; NaN rows: unmeasured) the colour cue."""
+        return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj, extents,
+                              colours)
 
     def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None,
-                  p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None) -> EnergyTerms:
+                  p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
+                  colours: npt.NDArray[Any] | None = None) -> EnergyTerms:
         emb = _unit_rows(embeddings)  # [N, d]
         if emb.ndim != 2 or emb.shape[1] != self.dim:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
@@ -568,6 +606,8 @@ class Grounder:
             p = object_hypotheses(emb @ self._obj_emb_t, self.temperature)  # [N, O]
             if self._size_table is not None and extents is not None:
                 p = with_size_cue(p, size_log_likelihood(extents, self._size_table))
+            if self._colour_table is not None and colours is not None:
+                p = with_colour_cue(p, colour_log_likelihood(colours, self._colour_table))
         else:
             p = np.asarray(p_obj, dtype=np.float32)
             if p.shape != (len(emb), len(self.vocabulary)):
@@ -601,7 +641,7 @@ class Grounder:
             else:
                 usable.append(i)
         ranked: list[RankedROI] = []
-        size_cue_used = False
+        size_cue_used = colour_cue_used = False
         if usable:
             emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
@@ -609,7 +649,10 @@ class Grounder:
             extents = np.array([rois[i].extents_m if rois[i].extents_m is not None else (np.nan,) * 3
                                 for i in usable], dtype=np.float64)  # [N, 3]
             size_cue_used = self._size_table is not None and bool(np.isfinite(extents).all(axis=1).any())
-            terms = self._energies(plan, emb, gmax, extents=extents)
+            colours = np.array([rois[i].colours if rois[i].colours is not None else (np.nan,) * len(COLOUR_TERMS)
+                                for i in usable], dtype=np.float64)  # [N, 11]
+            colour_cue_used = self._colour_table is not None and bool(np.isfinite(colours).all(axis=1).any())
+            terms = self._energies(plan, emb, gmax, extents=extents, colours=colours)
             top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
             top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once
             top_i = top.tolist()
@@ -632,6 +675,7 @@ class Grounder:
             open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
             request=plan.request, property_names=self.properties if plan.request is not None else [],
             notes=self._open_world_notes(plan, ranked), size_cue_used=size_cue_used,
+            colour_cue_used=colour_cue_used,
         )
 
     def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:

@@ -48,6 +48,13 @@ class GroundingSettings(BaseModel):
     #: size for every vocabulary object, and only ROIs that carry extents are affected; ``True``:
     #: required (a bundle without the sizes is an error); ``False``: off.
     size_cue: bool | None = None
+    #: p(o | r) also weighs each ROI's colour shares against the objects' typical colours
+    #: (``grounding/colour_cue.py``). Opt-in: ``True`` turns it on (a bundle without the colours
+    #: is an error); ``None`` (default) and ``False``: off. It raises recognition of isolated
+    #: renders but lowered CRAFT-E's Detect on the dev episodes (the testbed's drill, spoon and
+    #: plate are not the colours a typical one is), so it is not the default
+    #: (``docs/recognition.md``).
+    colour_cue: bool | None = None
 
     @field_validator("temperature", mode="before")
     @classmethod
@@ -88,4 +95,6 @@ class GroundingSettings(BaseModel):
                                "energy_form": self.energy_form}
         if self.size_cue is not None:  # only when set: results stored before the option read the same
             out["size_cue"] = self.size_cue
+        if self.colour_cue is not None:
+            out["colour_cue"] = self.colour_cue
         return out

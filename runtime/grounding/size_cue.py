@@ -27,7 +27,11 @@ from ..kb.sizes import TypicalSize
 
 FloatArray = npt.NDArray[np.float32]
 
-class SizeCueUnavailableError(ValueError):
+class CueUnavailableError(ValueError):
+    """A perception cue was required over a vocabulary the bundle lacks its knowledge for."""
+
+
+class SizeCueUnavailableError(CueUnavailableError):
     """``size_cue=True`` over a vocabulary the bundle has no typical size for (names them)."""
 
 
@@ -60,10 +64,13 @@ def size_log_likelihood(extents_m: npt.NDArray[np.floating], table: tuple[FloatA
     return np.where(measured[:, None], ll, 0.0).astype(np.float32)
 
 
-def with_size_cue(p: FloatArray, log_likelihood: FloatArray) -> FloatArray:
-    """``p(o | r)`` reweighted by the size likelihood, renormalised per ROI (``[N, O]``)."""
+def with_cue(p: FloatArray, log_likelihood: FloatArray) -> FloatArray:
+    """``p(o | r)`` reweighted by a cue's likelihood (size, colour), renormalised per ROI (``[N, O]``)."""
     ll = log_likelihood.astype(np.float64)
     w = p.astype(np.float64) * np.exp(ll - ll.max(axis=1, keepdims=True))
     total = w.sum(axis=1, keepdims=True)
     out = np.where(total > 0, w / np.where(total > 0, total, 1.0), p)
     return out.astype(np.float32)
+
+
+with_size_cue = with_cue

@@ -25,6 +25,7 @@ from ...schemas.v1.bundle import (
     Manifest,
 )
 from ...schemas.v1.graph import KnowledgeGraph
+from .colours import COLOURS_FILE, TypicalColours, parse_colours
 from .sizes import SIZES_FILE, SizesError, TypicalSize, parse_sizes
 from .verify import (
     MAX_FILE_BYTES,
@@ -67,6 +68,8 @@ class Bundle:
     open_world: dict[str, Any] | None = None  # open_world.json (None: a bundle built before it)
     #: object_sizes.json: typical sizes by object name (empty: none recorded, or an older bundle)
     sizes: dict[str, TypicalSize] = field(default_factory=dict)
+    #: object_colours.json: typical colours by object name (empty: none recorded, or an older bundle)
+    colours: dict[str, TypicalColours] = field(default_factory=dict)
 
     @cached_property
     def verb_index(self) -> dict[str, int]:
@@ -144,9 +147,12 @@ def load_bundle(
         raise BundleError(f"{folder / 'open_world.json'}: not a JSON object; rebuild the bundle")
     try:
         sizes = parse_sizes(folder, data[SIZES_FILE], manifest.objects) if SIZES_FILE in data else {}
-    except SizesError as exc:
+        colours = (parse_colours(folder, data[COLOURS_FILE], manifest.objects)
+                   if COLOURS_FILE in data else {})
+    except SizesError as exc:  # ColoursError is one
         raise BundleError(str(exc)) from None
-    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world, sizes)
+    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world,
+                  sizes, colours)
 
 
 def check_content(

@@ -43,6 +43,9 @@ class ROI:
     #: the box edges measured from depth, metres, longest first (``perception/extents.py``);
     #: ``None``: not measured (no depth), the size cue is then neutral for this ROI
     extents_m: tuple[float, float, float] | None = None
+    #: the share of its pixels in each basic colour term (``perception/colours.py``, the order of
+    #: ``kb.colours.COLOUR_TERMS``); ``None``: not measured, the colour cue is then neutral
+    colours: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)

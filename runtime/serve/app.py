@@ -112,6 +112,9 @@ class GroundOptions(BaseModel):
         None, description="sum-tanh | normalized-product (default: the bundle's)."
     )
     top_k: Annotated[int, Field(ge=1, description="Return only the k best ranked ROIs.")] | None = None
+    colour_cue: bool | None = Field(None, description=(
+        "Weigh p(o | r) by each ROI's `colours` against the objects' typical colours (opt-in; needs "
+        "`objects` whose every name has typical colours in the bundle)."))
 
 
 Box = tuple[float, float, float, float]
@@ -153,6 +156,27 @@ def _check_extents(values: tuple[float, float, float] | None) -> tuple[float, fl
     return a, b, c
 
 
+def _check_colours(values: dict[str, float] | None) -> dict[str, float] | None:
+    if values is None:
+        return None
+    from ..kb.colours import COLOUR_TERMS
+
+    unknown = sorted(set(values) - set(COLOUR_TERMS))
+    if unknown or not values:
+        raise ValueError(f"colours {sorted(values)}: shares by basic colour term, one or more of "
+                         f"{', '.join(COLOUR_TERMS)}")
+    if not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values.values()) or not 0.99 <= sum(values.values()) <= 1.01:
+        raise ValueError(f"colours {values}: each share in [0, 1], adding up to 1 (the region's pixels)")
+    return values
+
+
+def _colour_shares(values: dict[str, float] | None) -> tuple[float, ...] | None:
+    """A request's colour shares in the runtime's term order (``kb.colours.COLOUR_TERMS``)."""
+    from ..kb.colours import COLOUR_TERMS
+
+    return None if values is None else tuple(float(values.get(t, 0.0)) for t in COLOUR_TERMS)
+
+
 class RoiIn(BaseModel):
     """One candidate region as a client sends it."""
 
@@ -171,11 +195,17 @@ class RoiIn(BaseModel):
         "The region's box edges in metres, measured from depth (any order). With a scene vocabulary "
         "(`objects`) whose every name has a typical size in the bundle, p(o | r) also weighs how "
         "well they fit (the size cue); null: not measured."))
+    colours: dict[str, float] | None = Field(None, description=(
+        "The share of the region's pixels in each basic colour term (black, white, grey, red, orange, "
+        "yellow, green, blue, purple, pink, brown; they add up to 1). With a scene vocabulary whose every "
+        "name has typical colours in the bundle, p(o | r) also weighs how well they fit (the colour cue); "
+        "null: not measured."))
 
     _box = field_validator("box_xywh")(_check_box)
     _scores = field_validator("grasp_scores")(_check_scores)
     _embedding = field_validator("image_embedding")(_check_embedding)
     _extents = field_validator("extents_m")(_check_extents)
+    _colours = field_validator("colours")(_check_colours)
 
 
 class GroundRequest(BaseModel):
@@ -269,15 +299,19 @@ class GroundingService:
             "uptime_s": round(time.time() - self.started, 3),
         }
 
-    def vocabulary_grounder(self, base: Grounder, form: EnergyForm, objects: list[str]) -> Grounder:
+    def vocabulary_grounder(self, base: Grounder, form: EnergyForm, objects: list[str],
+                            colour_cue: bool = False) -> Grounder:
         """A grounder over a request's scene vocabulary (unknown names inferred), kept for the
         last ``VOCABULARY_CACHE`` vocabularies; shares the server's text encoder."""
-        key = (form, tuple(objects))
+        key = (form, tuple(objects), colour_cue)
         found = self._vocab_grounders.pop(key, None)
         if found is None:
+            update: dict[str, object] = {"energy_form": form, "vocabulary": tuple(objects)}
+            if colour_cue:
+                update["colour_cue"] = True
             try:
-                found = Grounder(self.bundle, base.settings.model_copy(
-                    update={"energy_form": form, "vocabulary": tuple(objects)}), text_encoder=base._text_encoder)
+                found = Grounder(self.bundle, base.settings.model_copy(update=update),
+                                 text_encoder=base._text_encoder)
             except ValueError as exc:
                 raise _invalid(["objects"], str(exc), "invalid_vocabulary") from None
             if base._text_encoder is None:
@@ -295,8 +329,12 @@ class GroundingService:
         """
         form = (options.energy_form if options else None) or self.default_form
         base = self.grounders[form]
+        colour_cue = bool(options is not None and options.colour_cue)
+        if colour_cue and objects is None:
+            raise _invalid(["options", "colour_cue"], "the colour cue needs the scene's `objects`, each with "
+                           "typical colours in the bundle", "colour_cue_unavailable")
         if objects is not None:
-            base = self.vocabulary_grounder(base, form, objects)
+            base = self.vocabulary_grounder(base, form, objects, colour_cue)
         if options is None or (options.alpha, options.beta, options.gamma) == (None, None, None):
             return base
         return base.with_weights(
@@ -327,7 +365,8 @@ class GroundingService:
                                    "the embedding is all zeros: no direction, no object hypothesis",
                                    "embedding_zero")
             rois.append(ROI(box_xywh=r.box_xywh, grasp_scores=list(r.grasp_scores),
-                            image_embedding=emb, label=r.label, extents_m=r.extents_m))
+                            image_embedding=emb, label=r.label, extents_m=r.extents_m,
+                            colours=_colour_shares(r.colours)))
         return rois
 
     def check_image_boxes(self, count: int) -> None:

@@ -49,6 +49,7 @@ class LazyROI:
     scores: list[float]  # their scores, parallel to ``fitting``
     heights: HeightMap | None = None  # the other objects' surfaces, for the pick's clearance check
     extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
+    colours: tuple[float, ...] | None = None  # colour shares of its pixels, for the colour cue
     next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
     verified: set[int] = field(default_factory=set)  # indices IK accepted
     #: fitting grasps not checked yet, in order (``pipeline.iter_fitting_with_refinements``):
@@ -73,7 +74,8 @@ class LazyROI:
         return ROI(box_xywh=self.box_xywh,
                    grasp_scores=[self.scores[self.next_index]] if rest else [],
                    grasps=[self.fitting[self.next_index]] if rest else [],
-                   image_embedding=self.embedding, label=label, extents_m=self.extents_m)
+                   image_embedding=self.embedding, label=label, extents_m=self.extents_m,
+                   colours=self.colours)
 
 
 @dataclass(frozen=True)
@@ -132,6 +134,7 @@ def perceive_for_pick(
         iter_fitting_with_refinements,
         raised_mask,
         raw_candidates,
+        roi_colours,
         roi_points,
         torch_threads,
     )
@@ -162,7 +165,7 @@ def perceive_for_pick(
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
                                [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
-                               measure_extents(material, table_z),
+                               measure_extents(material, table_z), roi_colours(obs.rgb, raised, roi),
                                unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config)))
     return out
 

@@ -66,6 +66,7 @@ import pybullet as p
 from ..encoders.image import ImageEncoder
 from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
 from ..grounding.grounder import Grounder, Grounding, RankedROI
+from ..perception.colours import measure_colours
 from ..perception.extents import measure_extents
 from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
@@ -202,6 +203,8 @@ class PerceivedROI:
     target_iou: float  # box IoU with the target's ground-truth box
     #: box edges from depth, metres, longest first (``perception/extents.py``; the size cue)
     extents_m: tuple[float, float, float] | None = None
+    #: colour shares of its raised pixels (``perception/colours.py``; the colour cue)
+    colours: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -402,6 +405,14 @@ def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
     return out
 
 
+def roi_colours(rgb: npt.NDArray[np.uint8], raised: BoolMask, roi: Region) -> tuple[float, ...] | None:
+    """The ROI's colour shares (``perception/colours.py``) over the same raised pixels as
+    ``roi_points``: the object's own surface, not the table around it."""
+    x, y, w, h = roi.box_xywh
+    box = (slice(y, y + h), slice(x, x + w))
+    return measure_colours(rgb[box][roi.mask[box] & raised[box]])
+
+
 @dataclass(frozen=True)
 class _Surfaces:
     """Depth points a grasp check needs: one object's surface above the table."""
@@ -570,11 +581,13 @@ def perceive(
         checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude)
                    for i, s in enumerate(surfaces)]
         extents = [measure_extents(s.material, table_z) for s in surfaces]
+        colours = [roi_colours(obs.rgb, raised, roi) for roi in rois]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
         perceived.append(PerceivedROI(roi, tuple(candidates), usable,
-                                      np.asarray(embeddings[i], np.float32), body, iou, extents[i]))
+                                      np.asarray(embeddings[i], np.float32), body, iou, extents[i],
+                                      colours[i]))
     target_roi = None
     if perceived:
         best = max(range(len(perceived)), key=lambda i: (perceived[i].target_iou, -i))
@@ -612,6 +625,7 @@ def grounding_rois(perception: ScenePerception) -> list[ROI]:
             mask=r.roi.mask,
             label=f"roi{i}",
             extents_m=r.extents_m,
+            colours=r.colours,
         )
         for i, r in enumerate(perception.rois)
     ]

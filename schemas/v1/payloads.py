@@ -169,3 +169,43 @@ class ObjectSize(_Strict):
         if any(a < b for a, b in pairwise(value)):
             raise ValueError(f"dimensions_cm must be longest first, got {value}")
         return value
+
+
+#: The eleven basic colour terms (Berlin & Kay): the only words ``object_colour`` answers use, so
+#: the runtime can sort an ROI's pixels into the same bins (``perception/colours.py``).
+ColourTerm = Literal["black", "white", "grey", "red", "orange", "yellow", "green", "blue", "purple",
+                     "pink", "brown"]
+
+
+class ColourShare(_Strict):
+    """One colour of an object's visible surface and the share of it that colour covers."""
+
+    colour: ColourTerm
+    share: Annotated[float, Field(gt=0.0, le=1.0)]
+
+
+class ObjectColour(_Strict):
+    """Perception knowledge: the colours a typical ``object`` shows from above (prompt ``object_colour``).
+
+    A colour camera sees what the ImageNet label space may not name: a rendered orange that the
+    image encoder calls a "bowl" is still orange. ``colours``: one to three basic terms with the
+    share of the visible surface each covers (they add up to 1 or less; the rest is detail).
+    ``variability`` says how much instances stray from them (a banana: low; a mug: high) and sets
+    how much a mismatch counts.
+    """
+
+    object: Phrase
+    colours: list[ColourShare] = Field(min_length=1, max_length=3)
+    variability: Variability
+    note: Annotated[str, Field(max_length=200)] = ""
+
+    @field_validator("colours")
+    @classmethod
+    def _distinct_and_at_most_whole(cls, value: list[ColourShare]) -> list[ColourShare]:
+        terms = [c.colour for c in value]
+        if len(set(terms)) != len(terms):
+            raise ValueError(f"each colour may appear once, got {terms}")
+        total = sum(c.share for c in value)
+        if total > 1.0 + 1e-6:
+            raise ValueError(f"the shares add up to {total:g}; they must add up to 1 or less")
+        return value
