@@ -192,3 +192,24 @@ def test_sim_demo_writes_figure_gif_and_explanation(tmp_path: Path) -> None:
     assert frames.shape[-3:-1] == (240, 320)
     assert "E_total" in result.output and "outcome:" in result.output
     assert (tmp_path / "pour_0.json").is_file()
+
+
+def test_colours_are_measured_only_for_a_grounder_that_reads_them(env: SimEnv, encoder: Any) -> None:
+    """The colour cue is opt-in: perception measures ROI colours only when asked (the robot's
+    default path does no work for it), and ``run_episode`` asks when a grounder has the cue."""
+    from craft_e.runtime.grounding.grounder import Grounder
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.kb.colours import COLOUR_TERMS
+    from craft_e.runtime.sim.pipeline import grounding_rois, run_episode
+
+    env.reset(EASY)
+    config = PipelineConfig(grasp="oracle", rois="oracle")
+    assert all(r.colours is None for r in perceive(env, encoder, config).rois)
+    measured = perceive(env, encoder, config, colours=True).rois
+    for r in measured:
+        assert r.colours is not None and len(r.colours) == len(COLOUR_TERMS)
+        assert sum(r.colours) == pytest.approx(1.0, abs=1e-5)
+    bundle = load_bundle(KB_DIR / "craft-e-default")
+    coloured = Grounder(bundle, GroundingSettings(vocabulary=list(sim_vocabulary()), colour_cue=True))
+    result = run_episode(env, EASY, {"coloured": coloured}, encoder, config)
+    assert all(r.colours is not None for r in grounding_rois(result.perception))

@@ -277,7 +277,7 @@ class GroundingService:
     max_image_pixels: int = MAX_IMAGE_PIXELS
     max_concurrent_images: int = DEFAULT_MAX_CONCURRENT_IMAGES
     _encoder_lock: threading.Lock = field(default_factory=threading.Lock)
-    _vocab_grounders: dict[tuple[str, tuple[str, ...]], Grounder] = field(default_factory=dict, repr=False)
+    _vocab_grounders: dict[tuple[str, tuple[str, ...], bool], Grounder] = field(default_factory=dict, repr=False)
     _image_slots: threading.BoundedSemaphore | None = field(default=None, repr=False)
 
     def image_slot(self) -> threading.BoundedSemaphore:

@@ -115,7 +115,7 @@ def ground_lazily(
 
 def perceive_for_pick(
     env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation,
-    *, timings: dict[str, float] | None = None,
+    *, timings: dict[str, float] | None = None, colours: bool = False,
 ) -> list[LazyROI]:
     """What the robot computes before grounding: ROIs, one grasp-network pass, the crops'
     embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
@@ -124,7 +124,8 @@ def perceive_for_pick(
 
     Both networks run as their inference rewrites (``grasp.fused``, ``encoders.fused``: the
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
-    evaluation's path, keeps the checkpoints' layer layout so published results reproduce."""
+    evaluation's path, keeps the checkpoints' layer layout so published results reproduce.
+    ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue)."""
     from ..encoders.image import crop_box, inference_encoder
     from ..perception.extents import measure_extents
     from ..perception.segment import segment
@@ -165,7 +166,8 @@ def perceive_for_pick(
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
                                [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
-                               measure_extents(material, table_z), roi_colours(obs.rgb, raised, roi),
+                               measure_extents(material, table_z),
+                               roi_colours(obs.rgb, raised, roi) if colours else None,
                                unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config)))
     return out
 

@@ -542,13 +542,15 @@ def _stage(timings: dict[str, float] | None, name: str) -> Iterator[None]:
 def perceive(
     env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation | None = None,
     *, timings: dict[str, float] | None = None, exclude: Callable[[TopDownGrasp], bool] | None = None,
+    colours: bool = False,
 ) -> ScenePerception:
     """Capture (unless ``obs`` is given), find ROIs and grasps, check them, embed the crops.
 
     ``env`` holds the built scene with the arm at home; nothing here moves it. ``timings``, if
     given, receives the wall time of the robot-side stages (``ROBOT_STAGES``; rendering and the
     simulator's ground truth excluded) for ``benchmarks/bench_perception.py``. ``exclude`` marks
-    grasps grounding must not use (``retry``: those that already failed).
+    grasps grounding must not use (``retry``: those that already failed). ``colours``: measure
+    each ROI's colour shares (only a grounder with the opt-in colour cue reads them).
     """
     from ..encoders.image import crop_box
 
@@ -581,13 +583,13 @@ def perceive(
         checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude)
                    for i, s in enumerate(surfaces)]
         extents = [measure_extents(s.material, table_z) for s in surfaces]
-        colours = [roi_colours(obs.rgb, raised, roi) for roi in rois]
+        shares = [roi_colours(obs.rgb, raised, roi) if colours else None for roi in rois]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
         perceived.append(PerceivedROI(roi, tuple(candidates), usable,
                                       np.asarray(embeddings[i], np.float32), body, iou, extents[i],
-                                      colours[i]))
+                                      shares[i]))
     target_roi = None
     if perceived:
         best = max(range(len(perceived)), key=lambda i: (perceived[i].target_iou, -i))
@@ -793,7 +795,7 @@ def run_episode(
     start = SavedStart(env)
     after_pick: dict[int, int] = {}  # chosen ROI -> physics state right after its first pick
     try:
-        perception = perceive(env, encoder, cfg)
+        perception = perceive(env, encoder, cfg, colours=any(g.colour_cue_active for g in grounders.values()))
         rois = grounding_rois(perception)
         picks: dict[int, PickResult] = {}
         outcomes: dict[str, MethodOutcome] = {}
@@ -858,7 +860,8 @@ def retry_picks(
     for _ in range(cfg.retries):
         return_home(env, cfg)
         perception = perceive(env, encoder, config,
-                              exclude=lambda pose: any(same_grasp(pose, t, cfg) for t in tried))
+                              exclude=lambda pose: any(same_grasp(pose, t, cfg) for t in tried),
+                              colours=grounder.colour_cue_active)
         chosen = grounder.ground(verb, grounding_rois(perception)).chosen
         if chosen is None:
             attempts.append(Attempt(None, False, not_detected(perception).value))
