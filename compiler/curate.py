@@ -10,6 +10,7 @@ It never invents an answer: a prompt without a written answer stays missing.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -365,29 +366,24 @@ def _pending_per_object_requests(
     ]
 
 
-def pending_size_requests(
-    source: LLMSource,
-    verbs: list[str],
-    objects: list[str],
-    *,
-    version: str = DEFAULT_PROMPT_VERSION,
-    glosses: dict[str, str] | None = None,
-    verb_glosses: dict[str, str] | None = None,
-) -> list[dict[str, object]]:
-    """Size prompts still to answer: object (+ gloss) and the rendered prompt."""
-    del verbs, version, verb_glosses  # one version; sizes name no verbs or properties
-    return _pending_per_object_requests(SIZE_PROMPT_ID, source, objects, glosses)
+def _per_object_lister(prompt_id: str, what: str) -> Callable[..., list[dict[str, object]]]:
+    """A ``craftc curate pending`` lister for a per-object prompt (the CLI calls every lister
+    with the same arguments; per-object prompts have one version and name no verbs)."""
+    def lister(
+        source: LLMSource,
+        verbs: list[str],
+        objects: list[str],
+        *,
+        version: str = DEFAULT_PROMPT_VERSION,
+        glosses: dict[str, str] | None = None,
+        verb_glosses: dict[str, str] | None = None,
+    ) -> list[dict[str, object]]:
+        del verbs, version, verb_glosses
+        return _pending_per_object_requests(prompt_id, source, objects, glosses)
+
+    lister.__doc__ = f"{what} prompts still to answer: object (+ gloss) and the rendered prompt."
+    return lister
 
 
-def pending_colour_requests(
-    source: LLMSource,
-    verbs: list[str],
-    objects: list[str],
-    *,
-    version: str = DEFAULT_PROMPT_VERSION,
-    glosses: dict[str, str] | None = None,
-    verb_glosses: dict[str, str] | None = None,
-) -> list[dict[str, object]]:
-    """Colour prompts still to answer: object (+ gloss) and the rendered prompt."""
-    del verbs, version, verb_glosses  # one version; colours name no verbs or properties
-    return _pending_per_object_requests(COLOUR_PROMPT_ID, source, objects, glosses)
+pending_size_requests = _per_object_lister(SIZE_PROMPT_ID, "Size")
+pending_colour_requests = _per_object_lister(COLOUR_PROMPT_ID, "Colour")

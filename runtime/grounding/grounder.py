@@ -21,7 +21,7 @@ the ``Grounder`` constructor; ``ground`` is a few small matrix products (<1 ms f
 from __future__ import annotations
 
 import difflib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -363,20 +363,12 @@ class Grounder:
         self.dim = int(obj_emb.shape[1])
         self._size_table = size_table(names, bundle.sizes) if self.settings.size_cue is not False else None
         if self.settings.size_cue is True and self._size_table is None:
-            unsized = [n for n in names if n not in bundle.sizes]
-            raise SizeCueUnavailableError(
-                f"--size-cue: {self.kb} has no typical size for {len(unsized)} of the {len(names)} "
-                f"vocabulary objects ({', '.join(unsized[:5])}{', ...' if len(unsized) > 5 else ''}); "
-                "record them (craftc curate pending --prompt object_size) and rebuild the bundle, "
-                "or ground without the size cue")
+            raise SizeCueUnavailableError(self._uncovered("--size-cue", "typical size", names, bundle.sizes,
+                                                          "object_size", "the size cue"))
         self._colour_table = colour_table(names, bundle.colours) if self.settings.colour_cue is True else None
         if self.settings.colour_cue is True and self._colour_table is None:
-            missing = [n for n in names if n not in bundle.colours]
-            raise ColourCueUnavailableError(
-                f"--colour-cue: {self.kb} has no typical colours for {len(missing)} of the {len(names)} "
-                f"vocabulary objects ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}); "
-                "record them (craftc curate pending --prompt object_colour) and rebuild the bundle, "
-                "or ground without the colour cue")
+            raise ColourCueUnavailableError(self._uncovered("--colour-cue", "typical colours", names,
+                                                            bundle.colours, "object_colour", "the colour cue"))
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
 
         self._forbidden: dict[str, frozenset[str]] = {}
@@ -546,6 +538,14 @@ class Grounder:
     @property
     def beta(self) -> float:
         return self.settings.beta
+
+    def _uncovered(self, option: str, what: str, names: Sequence[str], known: Mapping[str, object],
+                   prompt: str, cue: str) -> str:
+        """The error of a required cue whose knowledge the bundle lacks for some of ``names``."""
+        missing = [n for n in names if n not in known]
+        return (f"{option}: {self.kb} has no {what} for {len(missing)} of the {len(names)} vocabulary objects "
+                f"({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''}); record them (craftc curate "
+                f"pending --prompt {prompt}) and rebuild the bundle, or ground without {cue}")
 
     @property
     def gamma(self) -> float:

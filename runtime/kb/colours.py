@@ -9,13 +9,11 @@ object and the fault.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from .sizes import VARIABILITIES, SizesError
+from .sizes import VARIABILITIES, SizesError, object_entries
 
 COLOURS_FILE = "object_colours.json"
 #: The basic colour terms, in the order of the runtime's colour histograms (``perception/colours.py``).
@@ -38,18 +36,8 @@ class TypicalColours:
 def parse_colours(folder: Path, blob: bytes, objects: list[str]) -> dict[str, TypicalColours]:
     """The colours in ``blob`` by object name; every name must be one of the bundle's ``objects``."""
     where = folder / COLOURS_FILE
-    try:
-        raw: Any = json.loads(blob)
-        entries = raw["objects"]
-        if not isinstance(entries, dict):
-            raise TypeError("'objects' is not a JSON object")
-    except (ValueError, KeyError, TypeError, RecursionError) as exc:
-        raise ColoursError(f"{where}: does not parse ({exc}); rebuild the bundle") from None
-    known = set(objects)
     out: dict[str, TypicalColours] = {}
-    for name, entry in entries.items():
-        if name not in known:
-            raise ColoursError(f"{where}: {name!r} is not an object of the bundle; rebuild the bundle")
+    for name, entry in object_entries(where, blob, objects, ColoursError).items():
         try:
             shares = {str(k): float(v) for k, v in dict(entry["colours"]).items()}
             variability = str(entry["variability"])

@@ -30,21 +30,27 @@ class TypicalSize:
     variability: str
 
 
-def parse_sizes(folder: Path, blob: bytes, objects: list[str]) -> dict[str, TypicalSize]:
-    """The sizes in ``blob`` by object name; every name must be one of the bundle's ``objects``."""
-    where = folder / SIZES_FILE
+def object_entries(where: Path, blob: bytes, objects: list[str], error: type[SizesError]) -> dict[str, Any]:
+    """A perception-knowledge file's ``"objects"`` table (sizes, colours), every name one of the
+    bundle's ``objects``; ``error`` (naming ``where``) otherwise."""
     try:
         raw: Any = json.loads(blob)
         entries = raw["objects"]
         if not isinstance(entries, dict):
             raise TypeError("'objects' is not a JSON object")
     except (ValueError, KeyError, TypeError, RecursionError) as exc:
-        raise SizesError(f"{where}: does not parse ({exc}); rebuild the bundle") from None
-    known = set(objects)
+        raise error(f"{where}: does not parse ({exc}); rebuild the bundle") from None
+    unknown = sorted(set(entries) - set(objects))
+    if unknown:
+        raise error(f"{where}: {unknown[0]!r} is not an object of the bundle; rebuild the bundle")
+    return entries
+
+
+def parse_sizes(folder: Path, blob: bytes, objects: list[str]) -> dict[str, TypicalSize]:
+    """The sizes in ``blob`` by object name; every name must be one of the bundle's ``objects``."""
+    where = folder / SIZES_FILE
     out: dict[str, TypicalSize] = {}
-    for name, entry in entries.items():
-        if name not in known:
-            raise SizesError(f"{where}: {name!r} is not an object of the bundle; rebuild the bundle")
+    for name, entry in object_entries(where, blob, objects, SizesError).items():
         try:
             dims = [float(x) for x in entry["dimensions_cm"]]
             variability = str(entry["variability"])
