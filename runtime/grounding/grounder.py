@@ -646,12 +646,15 @@ class Grounder:
             emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
             gmax = np.array([rois[i].grasp_scores[g] for i, g in zip(usable, best_grasp, strict=True)], dtype=np.float32)
-            extents = np.array([rois[i].extents_m if rois[i].extents_m is not None else (np.nan,) * 3
-                                for i in usable], dtype=np.float64)  # [N, 3]
-            size_cue_used = self._size_table is not None and bool(np.isfinite(extents).all(axis=1).any())
-            colours = np.array([rois[i].colours if rois[i].colours is not None else (np.nan,) * len(COLOUR_TERMS)
-                                for i in usable], dtype=np.float64)  # [N, 11]
-            colour_cue_used = self._colour_table is not None and bool(np.isfinite(colours).all(axis=1).any())
+            # the cues' measurements, gathered only for a cue that is on (NaN rows: not measured)
+            extents = None if self._size_table is None else np.array(
+                [rois[i].extents_m if rois[i].extents_m is not None else (np.nan,) * 3 for i in usable],
+                dtype=np.float64)  # [N, 3]
+            colours = None if self._colour_table is None else np.array(
+                [rois[i].colours if rois[i].colours is not None else (np.nan,) * len(COLOUR_TERMS) for i in usable],
+                dtype=np.float64)  # [N, 11]
+            size_cue_used = extents is not None and bool(np.isfinite(extents).all(axis=1).any())
+            colour_cue_used = colours is not None and bool(np.isfinite(colours).all(axis=1).any())
             terms = self._energies(plan, emb, gmax, extents=extents, colours=colours)
             top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
             top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once

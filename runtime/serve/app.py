@@ -67,6 +67,7 @@ from ..grounding.grounder import (
 )
 from ..grounding.settings import GroundingSettings
 from ..kb.bundle import Bundle, load_bundle
+from ..kb.colours import COLOUR_TERMS
 from ..perception.roi import ROI, BoxSpec, RoiError, build_rois
 
 #: Candidate regions per request. A tabletop scene has a handful; the bound keeps one request's
@@ -159,8 +160,6 @@ def _check_extents(values: tuple[float, float, float] | None) -> tuple[float, fl
 def _check_colours(values: dict[str, float] | None) -> dict[str, float] | None:
     if values is None:
         return None
-    from ..kb.colours import COLOUR_TERMS
-
     unknown = sorted(set(values) - set(COLOUR_TERMS))
     if unknown or not values:
         raise ValueError(f"colours {sorted(values)}: shares by basic colour term, one or more of "
@@ -172,8 +171,6 @@ def _check_colours(values: dict[str, float] | None) -> dict[str, float] | None:
 
 def _colour_shares(values: dict[str, float] | None) -> tuple[float, ...] | None:
     """A request's colour shares in the runtime's term order (``kb.colours.COLOUR_TERMS``)."""
-    from ..kb.colours import COLOUR_TERMS
-
     return None if values is None else tuple(float(values.get(t, 0.0)) for t in COLOUR_TERMS)
 
 
