@@ -176,11 +176,17 @@ def bare_robot() -> Iterator[Callable[..., CR3Robot]]:
         clients.append(client)
         p.setGravity(0, 0, -9.81, physicsClientId=client)
 
-        def step(n: int) -> None:
+        made: list[CR3Robot] = []
+
+        def step(n: int) -> None:  # as SimEnv.step: the hand's linkage is held before each step
             for _ in range(n):
+                if made:
+                    made[0].gripper.hold_linkage()
                 p.stepSimulation(physicsClientId=client)
 
-        return CR3Robot(client, step, gripper_config=gripper_config)
+        robot = CR3Robot(client, step, gripper_config=gripper_config)
+        made.append(robot)
+        return robot
 
     try:
         yield make

@@ -90,6 +90,8 @@ class SimEnv:
     def step(self, n: int = 1) -> None:
         """Advance physics ``n`` steps; the only clock an episode has."""
         for _ in range(n):
+            if self._robot is not None:
+                self._robot.gripper.hold_linkage()
             p.stepSimulation(physicsClientId=self.client)
             self.steps += 1
             if self.step_hook is not None:

@@ -2,8 +2,12 @@
 
 One driver for both hands of ``hands.py``. The Franka hand's two prismatic fingers are commanded
 to the same target with the same force. The Robotiq 2F-85 is a linkage: one driven joint
-(``finger_joint``) and five joints that follow it; pybullet ignores URDF ``mimic`` tags, so each
-follower is tied to the driver by a ``JOINT_GEAR`` constraint and its own motor is switched off.
+per finger and joints that follow it; pybullet ignores URDF ``mimic`` tags, so each follower is
+tied to its driver by a ``JOINT_GEAR`` constraint. A gear constraint couples velocities only: under
+a held load its position error grows unchecked (a hammer carried by the Robotiq: the pads' joints
+drifted 0.3 rad from the linkage's, the pads tilted and the hammer slid out). So before every
+physics step each follower is also servoed to ``multiplier`` x its driver's position
+(``hold_linkage``), as the real linkage's rigid bars hold it.
 The opening is measured between the pads, not read from joint values, so it means the same for
 both hands. Every action runs a fixed number of simulation steps so episodes are deterministic.
 """
@@ -23,8 +27,11 @@ from .hands import DEFAULT_HAND, HandName, HandSpec, hand_spec
 class GripperConfig:
     """Which hand, and how it is driven; ``None`` fields take the hand's defaults.
 
-    Robotiq force, measured on a fixed 40 mm box (``tests/test_sim_gripper.py``): 8 N·m on the
-    driven joint gives ~60 N normal force per pad, inside the real 2F-85's 20-235 N range.
+    Robotiq force, measured on fixed 20 and 50 mm boxes (``tests/test_sim_gripper.py``): 15-27 N
+    normal force per pad, the low end of the real 2F-85's 20-235 N. In this model the pad force is
+    set by pybullet's contact and constraint solve, not by the driven joints' effort (4, 8 and
+    16 N·m gave the same forces, the joints applying ~1.4-1.8 N·m), so ``force`` bounds the
+    Robotiq's squeeze without setting it.
     """
 
     hand: HandName = DEFAULT_HAND
@@ -34,6 +41,11 @@ class GripperConfig:
     close_steps: int = 120
     min_held_width: float = 0.002  # narrower than this means the fingers met: nothing is held
     gear_force: float = 500.0  # N·m a mimic constraint may exert to keep the linkage coupled
+    # The follower servo of ``hold_linkage``: effort (N·m) and position gain (1 = close the whole
+    # error in one step). The force never binds on held objects (20 and 100 N·m gave the same
+    # motion on a carried hammer); the gain is what removes the drift.
+    linkage_force: float = 100.0
+    linkage_gain: float = 1.0
 
     @property
     def spec(self) -> HandSpec:
@@ -108,6 +120,20 @@ class ParallelGripper:
             )
             p.changeConstraint(c, gearRatio=-multiplier, maxForce=self.config.gear_force, erp=1.0,
                                physicsClientId=self.client)
+
+    def hold_linkage(self) -> None:
+        """Servo every follower to ``multiplier`` x its driver's current position.
+
+        ``SimEnv.step`` calls it before each physics step; a hand without followers (the Franka
+        hand) does nothing, so its episodes are unchanged.
+        """
+        for joint, driver, multiplier in self._mimics:
+            q = p.getJointState(self.body_id, driver, physicsClientId=self.client)[0]
+            p.setJointMotorControl2(
+                self.body_id, joint, p.POSITION_CONTROL, targetPosition=multiplier * q,
+                force=self.config.linkage_force, positionGain=self.config.linkage_gain,
+                physicsClientId=self.client,
+            )
 
     def _command(self, q: float) -> None:
         for joint in self.finger_joints:

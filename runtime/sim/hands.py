@@ -5,11 +5,10 @@
 ``panda`` is the Franka hand from ``pybullet_data`` (80 mm stroke, prismatic fingers).
 
 The Franka hand stays the default because it picks better in this simulator, measured with the
-same executor on the same 36 dev episodes (``docs/results/sim_execution.md``): 14 of 17 executed
-picks succeeded with it against 10 of 16 with the Robotiq model, whose 4.6 cm longer hand also
-loses one reachable grasp (3D 75.0 vs 77.8 %). The Robotiq lost grips on lifting and in
-transport (a mustard bottle, a cup, a hammer, a spatula); our gear-coupled linkage is more
-compliant than the real one. ``--gripper robotiq_2f85`` selects it.
+same executor on the 105 dev episodes (``docs/results/sim_execution.md``): with the target's own
+best grasp it picks 88 targets against the Robotiq model's 74, and CRAFT-E's Grasp Rate is 73.3
+against 62.9. The Robotiq loses more grips on lifting and in transport, and its longer open
+fingers leave more targets without a usable grasp. ``--gripper robotiq_2f85`` selects it.
 
 Both hands close along their base link's y axis and approach along its z axis, so the arm's
 top-down IK and the grasp geometry are shared. Each hand's TCP is placed so that the finger tips
