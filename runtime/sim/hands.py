@@ -16,8 +16,9 @@ end ``FINGERTIP_BELOW_TCP`` below it when the fingers close on a thin object; th
 the TCP that high above the table, so the tips never dig into it.
 
 Measured on the Robotiq model in pybullet (``finger_joint`` 0 → 0.8 rad): the pad gap goes from
-86.0 mm to 1.5 mm and the pad tips move 14 mm further from the base (149 → 163 mm), as the
-real linkage does; hence the TCP is defined at the closed tips.
+86.0 mm to 1.5 mm (3.4 mm since ``gripper.py`` servos the linkage rigid: the pads' tips meet
+first) and the pad tips move 14 mm further from the base (149 → 163 mm), as the real linkage
+does; hence the TCP is defined at the closed tips.
 """
 
 from __future__ import annotations
