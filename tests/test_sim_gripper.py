@@ -22,7 +22,7 @@ from craft_e.runtime.sim.episode import Outcome, execute_pick
 from craft_e.runtime.sim.gripper import GripperConfig
 from craft_e.runtime.sim.hands import DEFAULT_HAND, FINGERTIP_BELOW_TCP, ROBOTIQ_2F85, hand_spec
 from craft_e.runtime.sim.robot import CR3Robot
-from craft_e.runtime.sim.scene import SceneSpec
+from craft_e.runtime.sim.scene import Scene, SceneSpec
 
 EASY = SceneSpec("pour", "mustard_bottle", ("foam_brick", "knife", "apple", "stapler_2"), seed=2)
 
@@ -88,14 +88,19 @@ def test_robotiq_closes_firmly_and_symmetrically_on_a_fixed_box(
         p.removeBody(box, physicsClientId=client)
 
 
+def _free_spot(scene: Scene, min_gap: float) -> tuple[float, float]:
+    """The reachable table point farthest from every object (at least ``min_gap`` away)."""
+    positions = np.array([scene.pose(o.body_id)[0][:2] for o in scene.objects])
+    grid = np.array([(x, y) for x in np.linspace(0.25, 0.45, 9) for y in np.linspace(-0.2, 0.2, 17)])
+    gaps = np.min(np.linalg.norm(grid[:, None, :] - positions[None], axis=2), axis=1)
+    assert gaps.max() > min_gap
+    x, y = grid[int(np.argmax(gaps))]
+    return float(x), float(y)
+
+
 def _cube_pick(hand: str) -> Outcome:
     with SimEnv(EnvConfig(gripper=GripperConfig(hand=hand))) as env:  # type: ignore[arg-type]
-        scene = env.reset(EASY)
-        positions = np.array([scene.pose(o.body_id)[0][:2] for o in scene.objects])
-        grid = np.array([(x, y) for x in np.linspace(0.25, 0.45, 9) for y in np.linspace(-0.2, 0.2, 17)])
-        gaps = np.min(np.linalg.norm(grid[:, None, :] - positions[None], axis=2), axis=1)
-        x, y = grid[int(np.argmax(gaps))]
-        assert gaps.max() > 0.1
+        x, y = _free_spot(env.reset(EASY), 0.1)
         half = 0.02
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[half] * 3, physicsClientId=env.client)
         cube = p.createMultiBody(0.1, shape, basePosition=[x, y, half + 0.001],
@@ -151,12 +156,7 @@ def _bar_pick(hold_linkage: bool, monkeypatch: pytest.MonkeyPatch) -> Outcome:
     if not hold_linkage:
         monkeypatch.setattr(ParallelGripper, "hold_linkage", lambda self: None)
     with SimEnv(EnvConfig(gripper=GripperConfig(hand="robotiq_2f85"))) as env:
-        scene = env.reset(EASY)
-        positions = np.array([scene.pose(o.body_id)[0][:2] for o in scene.objects])
-        grid = np.array([(x, y) for x in np.linspace(0.25, 0.45, 9) for y in np.linspace(-0.2, 0.2, 17)])
-        gaps = np.min(np.linalg.norm(grid[:, None, :] - positions[None], axis=2), axis=1)
-        x, y = grid[int(np.argmax(gaps))]
-        assert gaps.max() > 0.15
+        x, y = _free_spot(env.reset(EASY), 0.15)
         half, yaw, offset = (0.125, 0.0125, 0.015), 0.3, 0.06
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(half), physicsClientId=env.client)
         bar = p.createMultiBody(0.4, shape, basePosition=[x, y, half[2] + 0.001],
