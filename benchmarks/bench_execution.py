@@ -7,7 +7,7 @@ grasp (GR-ConvNet by default, with the grasp checks) is executed. Outcomes are c
 ``craft eval sim`` (``no_grasp`` when the target's ROI has no usable grasp).
 
 Run: ``.venv/bin/python benchmarks/bench_execution.py --labels artifacts/labels/sim_dev_labels.csv
-[--hand robotiq_2f85|panda] [--grasp grconvnet|oracle] [--max-pairs N] [--json OUT]``.
+[--hand robotiq_2f85|panda] [--force F] [--grasp grconvnet|oracle] [--max-pairs N] [--json OUT]``.
 Single attempt per episode, like the headline numbers.
 """
 
@@ -26,20 +26,22 @@ from craft_e.runtime.sim.episode import execute_pick
 from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive
 
 
-def _env_config(hand: str | None) -> EnvConfig:
-    if hand is None:
-        return EnvConfig()
+def _env_config(hand: str | None, force: float | None = None) -> EnvConfig:
     from craft_e.runtime.sim.gripper import GripperConfig
 
-    return EnvConfig(gripper=GripperConfig(hand=hand))  # type: ignore[arg-type]
+    if hand is None:
+        return EnvConfig(gripper=GripperConfig(force=force))
+    return EnvConfig(gripper=GripperConfig(hand=hand, force=force))  # type: ignore[arg-type]
 
 
-def run(labels: Path, hand: str | None, grasp: str, max_pairs: int | None) -> dict[str, Any]:
+def run(
+    labels: Path, hand: str | None, grasp: str, max_pairs: int | None, force: float | None = None
+) -> dict[str, Any]:
     specs = make_episode_specs(load_sim_labels(labels), layouts=3, seed=0, max_pairs=max_pairs)
     config = PipelineConfig(grasp=grasp, rois="oracle")  # type: ignore[arg-type]
     encoder = default_encoder(1)
     rows: list[dict[str, Any]] = []
-    with SimEnv(_env_config(hand)) as env:
+    with SimEnv(_env_config(hand, force)) as env:
         for spec in specs:
             env.reset(spec.scene)
             start = SavedStart(env)
@@ -59,7 +61,7 @@ def run(labels: Path, hand: str | None, grasp: str, max_pairs: int | None) -> di
                          "detail": detail})
             print(f"{spec.id:40s} {outcome:22s} {detail}", flush=True)
     counts = Counter(r["outcome"] for r in rows)
-    return {"hand": hand or "default", "grasp": grasp, "episodes": len(rows),
+    return {"hand": hand or "default", "force": force, "grasp": grasp, "episodes": len(rows),
             "outcomes": dict(sorted(counts.items())), "rows": rows}
 
 
@@ -69,9 +71,12 @@ def main() -> None:
     parser.add_argument("--hand", default=None, help="robotiq_2f85 | panda (default: the env's)")
     parser.add_argument("--grasp", default="grconvnet")
     parser.add_argument("--max-pairs", type=int, default=None)
+    parser.add_argument("--force", type=float, default=None,
+                        help="gripper effort: N per Franka finger, N·m per Robotiq driven joint "
+                             "(default: the hand's)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    report = run(args.labels, args.hand, args.grasp, args.max_pairs)
+    report = run(args.labels, args.hand, args.grasp, args.max_pairs, args.force)
     n = report["episodes"]
     print(f"\nhand {report['hand']}, grasp {report['grasp']}, {n} episodes")
     for outcome, count in report["outcomes"].items():
