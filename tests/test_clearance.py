@@ -176,6 +176,14 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
         free = TopDownGrasp(position=np.array([0.45, -0.25, table_z + 0.02]), yaw=0.0, width_m=0.05)
         assert heights.heights(free.position[None, :2], 0.12)[0] == table_z
         assert plan_pick(env, free, on, heights) is None
+        # and without the check the pick shows why it misses: the hand rests on the cracker box
+        from craft_e.runtime.sim.episode import Outcome, execute_pick
+
+        env.robot.reset_home()
+        missed = execute_pick(env, fitting[0].pose, env.scene.target.body_id, config.pick)
+        assert missed.outcome is Outcome.MISSED
+        assert missed.descent_gap is not None and missed.descent_gap > 0.1
+        assert "cracker_box" in missed.touching
 
 
 def test_the_preference_takes_the_first_clear_grasp_and_never_drops_a_region(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -112,6 +112,9 @@ def _cube_pick(hand: str) -> Outcome:
         grasp = TopDownGrasp(position=np.array([x + 0.006, y, 2 * half]), yaw=0.3, width_m=0.04)
         result = execute_pick(env, grasp, cube)
         assert result.wrist_frames == 1
+        # nothing stands near the cube: the hand reaches its grasp and touches no other object
+        assert result.descent_gap is not None and abs(result.descent_gap) < 0.01
+        assert result.touching == ()
         # the grasp was 6 mm off the cube's centre along x: the wrist look moves it back along
         # the closing axis (its x component is 6 mm * cos 0.3)
         assert result.wrist_shift == pytest.approx(-0.006 * math.cos(0.3), abs=0.002)

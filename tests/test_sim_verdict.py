@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from craft_e.runtime.sim.figures import verdict
+from craft_e.runtime.sim.figures import descent_sentence, verdict
 from craft_e.runtime.sim.pipeline import Failure
 
 
@@ -40,3 +40,11 @@ def test_every_failure_is_called_a_failure(failure: Failure, words: str) -> None
 def test_a_wrong_choice_names_what_was_chosen() -> None:
     ok, sentence = verdict(_result(Failure.WRONG_OBJECT, chosen_body=9), "m")
     assert not ok and "blue cup" in sentence and "not the knife" in sentence
+
+
+def test_the_descent_says_where_the_hand_stopped_and_on_what() -> None:
+    """The README demo's miss: the Franka hand rests on the cracker box 14 cm above the knife."""
+    assert descent_sentence(0.139, ("cracker_box",)) == (
+        "end of the descent: the hand stopped 13.9 cm above its grasp, touching the cracker box")
+    assert descent_sentence(0.002, ("wood_block",)) == (
+        "end of the descent: the hand reached its grasp, touching the wood block")

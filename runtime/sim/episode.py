@@ -107,6 +107,11 @@ class PickResult:
     detail: str = ""
     wrist_shift: float = 0.0  # m the wrist look moved the grasp along its closing axis
     wrist_frames: int = 0  # depth frames rendered from the wrist (robot time)
+    # Where the descent ended: the TCP's height above its planned lowest point (m; None when the
+    # arm never descended), and the other objects the arm or hand touched there. A miss with a
+    # large gap is a hand resting on a neighbour, not a bad grasp (``figures.verdict_lines``).
+    descent_gap: float | None = None
+    touching: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -264,6 +269,16 @@ class _Progress:
     rise: float = 0.0
     wrist_shift: float = 0.0
     wrist_frames: int = 0
+    descent_gap: float | None = None
+    touching: tuple[str, ...] = ()
+
+    def measure_descent(self, planned_z: float) -> None:
+        """Read-only: where the TCP stopped, and which other objects the robot touches."""
+        robot, scene = self.env.robot, self.env.scene
+        self.descent_gap = float(robot.tcp_pose().position[2]) - planned_z
+        bodies = {int(c[2]) for c in p.getContactPoints(bodyA=robot.body_id, physicsClientId=scene.client)}
+        names = (scene.object_by_body(b) for b in sorted(bodies - {self.target_body}))
+        self.touching = tuple(o.asset_id for o in names if o is not None)
 
     def measure_rise(self) -> float:
         self.rise = _body_z(self.env.scene, self.target_body) - self.start_z
@@ -280,6 +295,8 @@ class _Progress:
             detail=detail,
             wrist_shift=self.wrist_shift,
             wrist_frames=self.wrist_frames,
+            descent_gap=self.descent_gap,
+            touching=self.touching,
         )
 
 
@@ -305,6 +322,7 @@ def execute_pick(
     robot.follow([plan.pre.q])
     plan = _look_and_replan(env, grasp, plan, cfg, progress, rise)
     robot.follow([s.q for s in plan.descent])
+    progress.measure_descent(plan.grasp_z)
     robot.gripper.close()
     pinched = robot.gripper.check_grasp(ignore)
     if pinched is None:

@@ -160,6 +160,17 @@ _FAILURE_SENTENCES = {
 }
 
 
+DESCENT_GAP_SHOWN = 0.01  # m: a hand stopped higher than this above its grasp is worth saying
+
+
+def descent_sentence(gap: float, touching: tuple[str, ...]) -> str:
+    """Where the hand stopped on its way down, and on what: why a miss was a miss."""
+    where = (f"the hand stopped {100 * gap:.1f} cm above its grasp" if gap > DESCENT_GAP_SHOWN
+             else "the hand reached its grasp")
+    names = ", ".join(t.replace("_", " ") for t in touching)
+    return f"end of the descent: {where}" + (f", touching the {names}" if names else "")
+
+
 def verdict(result: EpisodeResult, method: str) -> tuple[bool, str]:
     """(success, one plain sentence saying what happened), for the terminal and the figure.
 
@@ -196,6 +207,9 @@ def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) 
                  + (f", wrist look moved the grasp {pick.wrist_shift * 1000:.1f} mm"
                     if pick is not None and pick.wrist_frames else "")
                  + (f", gripper {gripper}" if gripper else ""))
+    if pick is not None and pick.descent_gap is not None and (
+            pick.descent_gap > DESCENT_GAP_SHOWN or pick.touching):
+        lines.append(descent_sentence(pick.descent_gap, pick.touching))
     lines.append(verdict(result, method)[1])
     if outcome.retries:  # a retry policy ran after an empty hand (craft sim demo --retries)
         for k, a in enumerate(outcome.retries, 1):
