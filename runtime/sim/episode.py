@@ -109,7 +109,7 @@ class PickResult:
     wrist_frames: int = 0  # depth frames rendered from the wrist (robot time)
     # Where the descent ended: the TCP's height above its planned lowest point (m; None when the
     # arm never descended), and the other objects the arm or hand touched there. A miss with a
-    # large gap is a hand resting on a neighbour, not a bad grasp (``figures.verdict_lines``).
+    # large gap is a hand resting on a neighbour, not a bad grasp (``figures.describe`` says so).
     descent_gap: float | None = None
     touching: tuple[str, ...] = ()
 

@@ -29,9 +29,11 @@ class GripperConfig:
 
     Robotiq force, measured on fixed 20 and 50 mm boxes (``tests/test_sim_gripper.py``): 15-27 N
     normal force per pad, the low end of the real 2F-85's 20-235 N. In this model the pad force is
-    set by pybullet's contact and constraint solve, not by the driven joints' effort (4, 8 and
-    16 N·m gave the same forces, the joints applying ~1.4-1.8 N·m), so ``force`` bounds the
-    Robotiq's squeeze without setting it.
+    set by the closing speed, not by the driven joints' effort: pybullet builds a joint motor's
+    effort from its velocity target over a fixed number of solver iterations, and the light
+    Robotiq links get ~1.4-1.8 N·m from the 2 rad/s target (4, 8 and 16 N·m gave the same
+    forces). So ``force`` bounds the Robotiq's squeeze without setting it
+    (``docs/results/sim_execution.md``).
     """
 
     hand: HandName = DEFAULT_HAND
