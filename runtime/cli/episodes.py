@@ -58,6 +58,10 @@ ColourCueOpt = Annotated[bool | None, typer.Option(
     help="Weigh p(o|r) by how well each ROI's colours fit the objects' typical colours (the bundle's "
          "object_colours.json; grounding/colour_cue.py). Opt-in (off by default: it lowered Detect on the "
          "dev episodes, docs/recognition.md); --colour-cue requires colours for every vocabulary object.", show_default=False)]
+RelocateOpt = Annotated[bool, typer.Option(
+    help="Before a pick, move the chosen grasp a few cm along its object (or turn it) when the overhead depth "
+         "shows its approach blocked, keeping it when no nearby spot is clear (sim/relocate.py); "
+         "--no-relocate reproduces runs from before.")]
 ClearanceOpt = Annotated[bool, typer.Option(help="Reject approaches whose arm or hand would touch another object the "
                                                  "overhead depth shows (sim/clearance.py; off: too strict as a filter).")]
 

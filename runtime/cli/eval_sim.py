@@ -34,6 +34,7 @@ def eval_sim(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     clearance: ep.ClearanceOpt = False,
+    relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
@@ -53,7 +54,7 @@ def eval_sim(
 
     try:
         env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check, prefer_clear)
+                                                 landing_check, prefer_clear, relocate)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers,

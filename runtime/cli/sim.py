@@ -27,6 +27,7 @@ def demo(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     clearance: ep.ClearanceOpt = False,
+    relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
@@ -59,7 +60,7 @@ def demo(
 
     try:
         env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check)
+                                                 landing_check, relocate=relocate)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
                                 pick=pick, fingers=fingers,
                                 refine=RefineConfig(enabled=refine_grasps))

@@ -335,6 +335,8 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult, detect_iou: float =
                           "e_aff": _r(chosen.e_aff), "e_align": _r(chosen.e_align)}
                          if chosen is not None else None),
         }
+        if o.relocation is not None:  # the relocation policy ran: key only then (headline JSON unchanged)
+            methods[name]["relocation"] = o.relocation
         if o.retries is not None:  # a retry policy ran: keys only then (the headline JSON is unchanged)
             from ..sim.retry import succeeded
 
@@ -568,4 +570,5 @@ def evaluate_sim(
         config_out["retries"] = retry.retries
     if cfg.pick.clearance.prefer:
         config_out["prefer_clear"] = True
+    config_out["relocate"] = cfg.pick.clearance.relocate
     return SimReport(results, skipped, records, config_out)

@@ -56,6 +56,11 @@ class LazyROI:
     #: ``fitting`` grows from it only as far as grounding needs, so an ROI whose first grasp fits
     #: costs one finger check
     unchecked: Iterator[Any] | None = None
+    #: for relocating a blocked chosen grasp (``relocate_choice``): the region's mask, its depth
+    #: points above the table and its raw network grasps (opaque here)
+    mask: npt.NDArray[np.bool_] | None = None
+    material: npt.NDArray[np.float64] | None = None
+    raw: Sequence[Any] = ()
 
     def _checked_through(self, index: int) -> None:
         """Check grasps from ``unchecked`` until ``fitting[index]`` exists or none are left."""
@@ -168,7 +173,8 @@ def perceive_for_pick(
                                [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
                                measure_extents(material, table_z),
                                roi_colours(obs.rgb, raised, roi) if colours else None,
-                               unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config)))
+                               unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
+                               mask=roi.mask, material=material, raw=raw[i]))
     return out
 
 
@@ -188,3 +194,46 @@ def pick_reachable(env: SimEnv, config: PipelineConfig, rois: Sequence[LazyROI])
         return not config.ik_filter or plan_pick(env, grasp.pose, config.pick, heights_of(grasp)) is None
 
     return reachable
+
+
+def relocate_choice(
+    env: SimEnv, config: PipelineConfig, obs: Observation, roi: LazyROI, grasp: object,
+) -> tuple[object, str]:
+    """The robot's side of ``pipeline.relocated_grasp``: the chosen ``grasp`` of ``roi``, moved
+    along its object when the overhead depth shows its approach blocked (``sim/relocate.py``),
+    and why ("" when clear; the grasp itself when the policy is off). The spots are tried in the
+    evaluation's order: the network grasps after the chosen one come from the same
+    ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
+    Costs one clearance check of the chosen pick when its approach is clear."""
+    from ..grasp.geometry import TopDownGrasp, pose_to_rect
+    from .clearance import heights_excluding
+    from .episode import pick_problems
+    from .pipeline import GraspCandidate, raised_mask, tip_height, with_refinements
+    from .relocate import RelocateConfig, relocate_if_blocked
+
+    assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
+    if not config.pick.clearance.relocate or roi.mask is None or roi.material is None:
+        return grasp, ""
+    table_z = env.scene.layout.table_z
+    world = obs.points_world()
+    raised = raised_mask(world, table_z, config.fingers.height_tolerance)
+    heights = heights_excluding(world, raised, roi.mask, table_z, config.pick.clearance)
+    chosen = grasp.pose
+
+    def is_chosen(pose: TopDownGrasp) -> bool:  # the chosen grasp, as the evaluation's list holds it
+        return bool(np.array_equal(pose.position, chosen.position)) and (pose.yaw, pose.width_m) == (
+            chosen.yaw, chosen.width_m)
+
+    listed = with_refinements(list(roi.raw), roi.material, obs, table_z, config)
+    others = [c.pose for c in listed if c.pose is not None and not is_chosen(c.pose)]
+    result = relocate_if_blocked(
+        chosen, others, roi.material, heights, lambda g, h: pick_problems(env, g, config.pick, h),
+        lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig())
+    if not result.moved:
+        return grasp, result.detail
+    try:
+        rect = pose_to_rect(result.pose, obs.intrinsics, obs.cam_to_world, quality=grasp.quality,
+                            length_px=grasp.rect.length_px)
+    except ValueError:
+        return grasp, f"{result.detail}; not in the image, kept"
+    return GraspCandidate(rect, result.pose, True, True, f"relocated: {result.detail}"), result.detail

@@ -78,10 +78,10 @@ class PickConfig:
 
 def sim_configs(
     gripper: str, wrist_look: bool, clearance: bool = False, fine_collision: bool = True,
-    landing_check: bool = True, prefer_clear: bool = False,
+    landing_check: bool = True, prefer_clear: bool = False, relocate: bool = True,
 ) -> tuple[EnvConfig, PickConfig, FingerGeometry]:
     """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look``, ``--clearance``,
-    ``--prefer-clear`` and ``--fine-collision``, and the hand's finger geometry for the grasp
+    ``--prefer-clear``, ``--relocate`` and ``--fine-collision``, and the hand's finger geometry for the grasp
     checks (``PipelineConfig.fingers``; ``--landing-check``).
 
     Raises ValueError for an unknown gripper (the message lists the choices).
@@ -90,7 +90,7 @@ def sim_configs(
     pick = PickConfig()
     pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look),
                                clearance=dataclasses.replace(pick.clearance, enabled=clearance,
-                                                             prefer=prefer_clear))
+                                                             prefer=prefer_clear, relocate=relocate))
     env = EnvConfig(gripper=GripperConfig(hand=spec.name), physics=PhysicsConfig(fine_collision=fine_collision))
     return env, pick, dataclasses.replace(spec.fingers, check_landing=landing_check)
 

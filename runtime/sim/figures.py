@@ -201,6 +201,8 @@ def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) 
                  + (f" ({per.three_d_detail})" if per.three_d_detail else ""))
     lines.append(f"Detect (chosen ROI is the target, IoU {outcome.chosen_iou:.2f}): {outcome.detect}")
     pick = outcome.pick
+    if outcome.relocation:  # the relocation policy ran and the approach was blocked
+        lines.append(f"before the pick: {outcome.relocation}")
     lines.append(f"outcome: {outcome.failure.value}"
                  + (f" ({pick.detail})" if pick is not None and pick.detail else "")
                  + (f", {pick.steps} simulation steps" if pick is not None else "")

@@ -72,7 +72,7 @@ from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
 from ..perception.segment import SegmentConfig, segment
 from .assets import object_catalog
-from .clearance import HeightMap, heights_around
+from .clearance import HeightMap, heights_around, heights_excluding
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, execute_pick, pick_problems
 from .fingers import FingerGeometry as FingerGeometry
@@ -687,6 +687,10 @@ class MethodOutcome:
     # With a retry policy (``retry.RetryConfig.retries`` > 0): the attempts after a first pick
     # whose hand ended empty (empty when none was needed); None when the policy is off.
     retries: tuple[Attempt, ...] | None = None
+    # With ``ClearanceConfig.relocate``: "" when the chosen grasp's approach was clear, else what
+    # blocked it and where it moved (or that it was kept); None when the policy is off or nothing
+    # was executed. ``grasp`` is then the grasp executed.
+    relocation: str | None = None
 
     @property
     def success(self) -> bool:
@@ -794,6 +798,7 @@ def run_episode(
     env.reset(spec)
     start = SavedStart(env)
     after_pick: dict[int, int] = {}  # chosen ROI -> physics state right after its first pick
+    moved: dict[int, tuple[GraspCandidate, str]] = {}  # chosen ROI -> its relocated grasp, why
     try:
         perception = perceive(env, encoder, cfg, colours=any(g.colour_cue_active for g in grounders.values()))
         rois = grounding_rois(perception)
@@ -821,6 +826,12 @@ def run_episode(
                                                False, failure, None, grasp, true_roi, error,
                                                retries=no_retries)
                 continue
+            relocation: str | None = None
+            if cfg.pick.clearance.relocate and grasp is not None and grasp.pose is not None:
+                if chosen.index not in moved:
+                    start.restore()
+                    moved[chosen.index] = relocated_grasp(env, perception.obs, roi, grasp, cfg)
+                grasp, relocation = moved[chosen.index]
             if chosen.index not in picks:
                 start.restore()
                 if before_pick is not None:
@@ -838,13 +849,42 @@ def run_episode(
                 attempts = tuple(retry_picks(env, spec.verb, grounder, encoder, cfg, tried, retry))
             outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
                                            True, PICK_FAILURES[pick.outcome], pick, grasp, true_roi,
-                                           retries=attempts)
+                                           retries=attempts, relocation=relocation)
         return EpisodeResult(spec, perception, outcomes, dict(env.scene.body_assets))
     finally:
         start.release()
         if env.client >= 0:
             for state in after_pick.values():
                 p.removeState(state, physicsClientId=env.client)
+
+
+def relocated_grasp(
+    env: SimEnv, obs: Observation, roi: PerceivedROI, grasp: GraspCandidate, config: PipelineConfig,
+) -> tuple[GraspCandidate, str]:
+    """The chosen ``grasp`` of ``roi``, moved to a nearby spot of the object when its approach is
+    blocked (``sim/relocate.py``), and why ("" when it was clear). The arm must be at home: the
+    check plans the pick from the current posture. The moved grasp keeps the network grasp's
+    quality, so grounding is unaffected."""
+    from .relocate import RelocateConfig, relocate_if_blocked
+
+    assert grasp.pose is not None
+    table_z = env.scene.layout.table_z
+    world = obs.points_world()
+    raised = raised_mask(world, table_z, config.fingers.height_tolerance)
+    heights = heights_excluding(world, raised, roi.roi.mask, table_z, config.pick.clearance)
+    others = [c.pose for c in roi.candidates if c.pose is not None and c.pose is not grasp.pose]
+    result = relocate_if_blocked(
+        grasp.pose, others, roi_points(world, raised, roi.roi), heights,
+        lambda g, h: pick_problems(env, g, config.pick, h),
+        lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig())
+    if not result.moved:
+        return grasp, result.detail
+    try:
+        rect = pose_to_rect(result.pose, obs.intrinsics, obs.cam_to_world, quality=grasp.quality,
+                            length_px=grasp.rect.length_px)
+    except ValueError:
+        return grasp, f"{result.detail}; not in the image, kept"
+    return GraspCandidate(rect, result.pose, True, True, f"relocated: {result.detail}"), result.detail
 
 
 def retry_picks(

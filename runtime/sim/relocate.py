@@ -1,0 +1,124 @@
+"""Move a chosen grasp whose approach the depth frame shows blocked to a nearby spot of the same
+object, before the pick is executed (opt-in: ``ClearanceConfig.relocate``, ``--relocate``).
+
+Why: the README demo (`cut`, seed 0) and several dev misses are one failure. The knife lies
+beside a tall cracker box; every network grasp of it closes towards the box, and the Franka
+hand, 21 cm along its closing axis, comes to rest on the box 14 cm above the knife. As a filter
+the clearance check (``sim/clearance.py``) turns such picks into honest ``no_grasp``s and, as a
+preference, it has no other grasp to prefer: all of the knife's grasps are blocked. A person
+would take the knife a few centimetres further along its handle, where the hand clears the box.
+
+This does that, from the overhead depth frame only: the grasp is turned about its centre
+(15°, 30°), then slid along the object, across its closing axis, by 2, 4 and 6 cm each way
+(each slide also turned), nearest first; then the region's next network grasps are tried the
+same way, best first. A candidate must stand on the object (its centre has
+object points within ``footing_radius``; its height is their highest), the fingers must fit
+(``finger_check``) and the whole pick must be reachable with a clear approach
+(``episode.pick_problems`` against the same height map). The first that passes replaces the
+grasp; when none does the grasp is kept, so a pick is never dropped by this step.
+
+It runs after grounding, on the chosen grasp only: the moved grasp keeps the network grasp's
+quality (as a refinement does), so no choice changes; what changes is where the hand goes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..grasp.geometry import TopDownGrasp, wrap_half_pi
+from .clearance import HeightMap
+from .fingers import FingerGeometry, SurfacePoints, finger_check
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RelocateConfig:
+    """Which nearby spots a blocked grasp may move to."""
+
+    turns_deg: tuple[float, ...] = (15.0, 30.0)  # about the grasp's own centre, each sign
+    shifts: tuple[float, ...] = (0.02, 0.04, 0.06)  # m along the object (across the closing axis), each sign
+    footing_radius: float = 0.01  # m: object points this close to the new centre carry it
+    min_footing_points: int = 5  # fewer: the centre is off the object
+
+    def __post_init__(self) -> None:
+        if any(not 0 < t < 90 for t in self.turns_deg):
+            raise ValueError(f"relocation turns {self.turns_deg} must lie strictly between 0 and 90 degrees")
+        if any(s <= 0 for s in self.shifts):
+            raise ValueError(f"relocation shifts {self.shifts} must be positive (both signs are tried)")
+        if self.footing_radius <= 0 or self.min_footing_points < 1:
+            raise ValueError("footing_radius must be > 0 and min_footing_points >= 1")
+
+
+def relocations(pose: TopDownGrasp, material: FloatArray, cfg: RelocateConfig) -> Iterator[TopDownGrasp]:
+    """Candidate spots, nearest first: turns about the centre, then every slide along the object
+    (its turns right after it); only spots with object points under the centre, at their top."""
+    centre = np.asarray(pose.position, dtype=np.float64)
+    along = np.array([-math.sin(pose.yaw), math.cos(pose.yaw), 0.0])  # across the closing axis
+    yaws = [0.0] + [s * math.radians(t) for t in cfg.turns_deg for s in (1.0, -1.0)]
+    pts = np.asarray(material, dtype=np.float64)
+    for yaw in yaws[1:]:
+        yield TopDownGrasp(centre.copy(), wrap_half_pi(pose.yaw + yaw), pose.width_m)
+    for shift in (s * d for d in cfg.shifts for s in (1.0, -1.0)):
+        moved = centre + shift * along
+        if len(pts) == 0:
+            return
+        near = pts[np.linalg.norm(pts[:, :2] - moved[:2], axis=1) <= cfg.footing_radius]
+        if len(near) < cfg.min_footing_points:
+            continue
+        moved[2] = float(near[:, 2].max())
+        for yaw in yaws:
+            yield TopDownGrasp(moved.copy(), wrap_half_pi(pose.yaw + yaw), pose.width_m)
+
+
+@dataclass(frozen=True)
+class Relocation:
+    """What ``relocate_if_blocked`` decided: the grasp to execute and why."""
+
+    pose: TopDownGrasp
+    moved: bool
+    detail: str  # "" when the approach was clear; else what blocked it and what was done
+
+
+def relocate_if_blocked(
+    pose: TopDownGrasp,
+    others: Sequence[TopDownGrasp],
+    material: FloatArray,
+    heights: HeightMap,
+    problems: Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]],
+    tip_z_of: Callable[[TopDownGrasp], float],
+    fingers: FingerGeometry,
+    cfg: RelocateConfig,
+) -> Relocation:
+    """``pose`` if its approach is clear, else the first spot that fits the fingers and whose
+    pick is reachable and clear (``problems``: ``episode.pick_problems`` bound to the env and pick
+    settings), else ``pose`` unchanged (the detail says so). Spots, in order: ``relocations`` of
+    ``pose``, then each of ``others`` (the region's next network grasps, best first) and its
+    relocations."""
+    _, touched = problems(pose, heights)
+    if touched is None:
+        return Relocation(pose, False, "")
+    surface = SurfacePoints(material)
+
+    def spots() -> Iterator[tuple[TopDownGrasp, str]]:
+        yield from ((r, "") for r in relocations(pose, material, cfg))
+        for k, other in enumerate(others, start=2):
+            yield other, f"the region's network grasp #{k}"
+            yield from ((r, f"the region's network grasp #{k}") for r in relocations(other, material, cfg))
+
+    for spot, source in spots():
+        if not finger_check(surface, spot, tip_z_of(spot), fingers)[0]:
+            continue
+        unreachable, blocked = problems(spot, heights)
+        if unreachable is None and blocked is None:
+            shift = float(np.linalg.norm(np.asarray(spot.position[:2]) - np.asarray(pose.position[:2])))
+            turn = math.degrees(wrap_half_pi(spot.yaw - pose.yaw))
+            where = f"took {source}: " if source else ""
+            return Relocation(spot, True, f"{touched}; {where}the grasp moved {100 * shift:.1f} cm on the "
+                                          f"object and turned {turn:+.0f}°, a clear approach")
+    return Relocation(pose, False, f"{touched}; no nearby spot was clear, kept")
