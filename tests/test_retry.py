@@ -65,11 +65,22 @@ def test_negative_retries_are_refused() -> None:
 
 
 @pytest.fixture(scope="module")
-def cup_episode() -> Any:
-    """pour/cup/0 of the dev labels: the first pick loses its grip while lifting."""
+def knife_episode() -> Any:
+    """cut/knife/0 of the dev labels (the README demo): without relocation the Franka hand comes to
+    rest on the cracker box beside the knife and the fingers close on nothing.
+
+    (This was pour/cup/0, whose retry succeeded on the CPU the results were first made on; on an
+    AMX CPU its networks' last float digits differ, the carried cup ends 3 mm higher and the
+    retry's fresh frame picks another object. The knife's miss is geometry, not float noise.)"""
     labels = load_sim_labels(SIM_DEV_LABELS)
-    labels = dataclasses.replace(labels, pairs=tuple(p for p in labels.pairs if (p.verb, p.object) == ("pour", "cup")))
-    return next(s for s in make_episode_specs(labels, layouts=1) if s.id == "pour/cup/0")
+    labels = dataclasses.replace(labels, pairs=tuple(p for p in labels.pairs if (p.verb, p.object) == ("cut", "knife")))
+    return next(s for s in make_episode_specs(labels, layouts=1) if s.id == "cut/knife/0")
+
+
+def _without_relocation() -> PipelineConfig:
+    cfg = PipelineConfig()
+    return dataclasses.replace(cfg, pick=dataclasses.replace(
+        cfg.pick, clearance=dataclasses.replace(cfg.pick.clearance, relocate=False)))
 
 
 @pytest.fixture(scope="module")
@@ -82,26 +93,33 @@ def twin_grounders() -> Any:
 
 
 def test_a_retry_follows_an_empty_hand_and_leaves_the_first_attempt_as_it_was(
-    cup_episode: Any, twin_grounders: Any,
+    knife_episode: Any, twin_grounders: Any,
 ) -> None:
     grounders, enc = twin_grounders
-    cfg = PipelineConfig()
+    cfg = _without_relocation()
     with SimEnv() as env:
-        plain = episode_record(cup_episode, run_episode(env, cup_episode.scene, grounders, enc, cfg))
+        plain = episode_record(knife_episode, run_episode(env, knife_episode.scene, grounders, enc, cfg))
     with SimEnv() as env:
-        retried = episode_record(cup_episode, run_episode(env, cup_episode.scene, grounders, enc, cfg,
-                                                          retry=RetryConfig(retries=1)))
+        retried = episode_record(knife_episode, run_episode(env, knife_episode.scene, grounders, enc, cfg,
+                                                            retry=RetryConfig(retries=1)))
     first = plain["methods"]["CRAFT-E"]
-    assert first["failure"] == "lift_failed"
+    assert first["failure"] == "missed"
     assert "retries" not in first and "success_with_retries" not in first  # policy off: the old record
     for name in grounders:
         m = retried["methods"][name]
         # the first attempt is byte-for-byte what it was without the policy
         assert {k: v for k, v in m.items() if k not in ("retries", "success_with_retries")} == plain["methods"][name]
         assert len(m["retries"]) == 1
-        assert m["retries"][0]["detect"] and m["retries"][0]["failure"] == "success"
-        assert m["success_with_retries"] is True
+        # a fresh frame, the knife chosen again, its failed grasp excluded: the first retry
+        # misses too (the second succeeds: test_eval_sim.py's retries test)
+        assert m["retries"][0]["detect"] and m["retries"][0]["failure"] == "missed"
+        assert m["success_with_retries"] is False
     # each method's retries start from the same saved state: the cached pick's twin retries alike
-    assert retried["methods"]["twin"]["retries"] == retried["methods"]["CRAFT-E"]["retries"]
+    # (its grasp's quality to 1e-4: pybullet's restoreState does not restore the contact solver's
+    # warm start, so after the hand has touched the box the replayed frames differ in float digits)
+    twin, own = retried["methods"]["twin"]["retries"], retried["methods"]["CRAFT-E"]["retries"]
+    assert [{k: v for k, v in a.items() if k != "grasp_quality"} for a in twin] == [
+        {k: v for k, v in a.items() if k != "grasp_quality"} for a in own]
+    assert [a["grasp_quality"] for a in twin] == pytest.approx([a["grasp_quality"] for a in own], abs=1e-4)
     # the rest of the record (perception, 3D) is untouched
     assert {k: v for k, v in retried.items() if k != "methods"} == {k: v for k, v in plain.items() if k != "methods"}
