@@ -100,7 +100,9 @@ def test_grounder_applies_the_cue_to_measured_rois_only() -> None:
     table = size_table(vocabulary, bundle.sizes)
     assert table is not None
     np.testing.assert_allclose(p1, with_size_cue(p0, size_log_likelihood(extents, table)), rtol=1e-5, atol=1e-7)
-    np.testing.assert_array_equal(p1[1], p0[1])  # the unmeasured ROI keeps its image-only p
+    # the unmeasured ROI keeps its image-only p (to float32 rounding: renormalised, and the
+    # vectorised sums' order differs between CPU instruction sets)
+    np.testing.assert_allclose(p1[1], p0[1], rtol=1e-6, atol=0)
     hammer = vocabulary.index("hammer")
     assert p1[0, hammer] > p0[0, hammer]
     # ground() reads the ROI's extents
