@@ -30,6 +30,7 @@ from .clearance import HeightMap
 
 if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder
+    from ..grasp.geometry import TopDownGrasp
     from ..perception.observation import Observation
     from .env import SimEnv
     from .pipeline import PipelineConfig
@@ -205,35 +206,17 @@ def relocate_choice(
     evaluation's order: the network grasps after the chosen one come from the same
     ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
     Costs one clearance check of the chosen pick when its approach is clear."""
-    from ..grasp.geometry import TopDownGrasp, pose_to_rect
-    from .clearance import heights_excluding
-    from .episode import pick_problems
-    from .pipeline import GraspCandidate, raised_mask, tip_height, with_refinements
-    from .relocate import RelocateConfig, relocate_if_blocked
+    from .pipeline import GraspCandidate, relocate_candidate, with_refinements
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
     if not config.pick.clearance.relocate or roi.mask is None or roi.material is None:
         return grasp, ""
-    table_z = env.scene.layout.table_z
-    world = obs.points_world()
-    raised = raised_mask(world, table_z, config.fingers.height_tolerance)
-    heights = heights_excluding(world, raised, roi.mask, table_z, config.pick.clearance)
     chosen = grasp.pose
 
     def is_chosen(pose: TopDownGrasp) -> bool:  # the chosen grasp, as the evaluation's list holds it
         return bool(np.array_equal(pose.position, chosen.position)) and (pose.yaw, pose.width_m) == (
             chosen.yaw, chosen.width_m)
 
-    listed = with_refinements(list(roi.raw), roi.material, obs, table_z, config)
+    listed = with_refinements(list(roi.raw), roi.material, obs, env.scene.layout.table_z, config)
     others = [c.pose for c in listed if c.pose is not None and not is_chosen(c.pose)]
-    result = relocate_if_blocked(
-        chosen, others, roi.material, heights, lambda g, h: pick_problems(env, g, config.pick, h),
-        lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig())
-    if not result.moved:
-        return grasp, result.detail
-    try:
-        rect = pose_to_rect(result.pose, obs.intrinsics, obs.cam_to_world, quality=grasp.quality,
-                            length_px=grasp.rect.length_px)
-    except ValueError:
-        return grasp, f"{result.detail}; not in the image, kept"
-    return GraspCandidate(rect, result.pose, True, True, f"relocated: {result.detail}"), result.detail
+    return relocate_candidate(env, obs, roi.mask, roi.material, grasp, others, config)

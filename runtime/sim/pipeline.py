@@ -865,16 +865,29 @@ def relocated_grasp(
     blocked (``sim/relocate.py``), and why ("" when it was clear). The arm must be at home: the
     check plans the pick from the current posture. The moved grasp keeps the network grasp's
     quality, so grounding is unaffected."""
+    assert grasp.pose is not None
+    world = obs.points_world()
+    raised = raised_mask(world, env.scene.layout.table_z, config.fingers.height_tolerance)
+    others = [c.pose for c in roi.candidates if c.pose is not None and c.pose is not grasp.pose]
+    return relocate_candidate(env, obs, roi.roi.mask, roi_points(world, raised, roi.roi), grasp, others, config)
+
+
+def relocate_candidate(
+    env: SimEnv, obs: Observation, mask: BoolMask, material: FloatArray, grasp: GraspCandidate,
+    others: Sequence[TopDownGrasp], config: PipelineConfig,
+) -> tuple[GraspCandidate, str]:
+    """What both paths share (``relocated_grasp``, ``choose.relocate_choice``): the search over
+    the region's own depth points (``material``) against the height map of everything outside
+    its ``mask``, and the moved grasp as a candidate with the network grasp's quality."""
     from .relocate import RelocateConfig, relocate_if_blocked
 
     assert grasp.pose is not None
     table_z = env.scene.layout.table_z
     world = obs.points_world()
     raised = raised_mask(world, table_z, config.fingers.height_tolerance)
-    heights = heights_excluding(world, raised, roi.roi.mask, table_z, config.pick.clearance)
-    others = [c.pose for c in roi.candidates if c.pose is not None and c.pose is not grasp.pose]
+    heights = heights_excluding(world, raised, mask, table_z, config.pick.clearance)
     result = relocate_if_blocked(
-        grasp.pose, others, roi_points(world, raised, roi.roi), heights,
+        grasp.pose, others, material, heights,
         lambda g, h: pick_problems(env, g, config.pick, h),
         lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig())
     if not result.moved:
