@@ -66,6 +66,7 @@ from craft_e.runtime.sim.choose import (
     relocate_choice,
 )
 from craft_e.runtime.sim.env import SimEnv
+from craft_e.runtime.sim.episode import PlanCache
 from craft_e.runtime.sim.pipeline import (
     GraspCandidate,
     PipelineConfig,
@@ -135,10 +136,12 @@ def main() -> None:
                 frame = dataclasses.replace(obs)  # a new frame: its 3D points are computed in the timed stages
                 lazy = perceive_for_pick(env, enc, cfg, frame, timings=timings)
                 t0 = time.perf_counter()
-                choice = ground_lazily(grounder, spec.verb, lazy, pick_reachable(env, cfg, lazy))
+                made: PlanCache = {}  # the IK plans of this scene, reused by the relocation check
+                choice = ground_lazily(grounder, spec.verb, lazy, pick_reachable(env, cfg, lazy, made))
                 picked = choice.grasp
                 if picked is not None and choice.grounding.chosen is not None:
-                    picked, why = relocate_choice(env, cfg, frame, lazy[choice.grounding.chosen.index], picked)
+                    picked, why = relocate_choice(env, cfg, frame, lazy[choice.grounding.chosen.index], picked,
+                                                  made)
                     relocated += int(why.startswith("approach blocked") and "kept" not in why)
                 timings["ground_ik"] = time.perf_counter() - t0
                 plans += choice.plans

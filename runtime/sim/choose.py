@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from ..grasp.geometry import TopDownGrasp
     from ..perception.observation import Observation
     from .env import SimEnv
+    from .episode import PlanCache
     from .pipeline import PipelineConfig
 
 
@@ -179,10 +180,12 @@ def perceive_for_pick(
     return out
 
 
-def pick_reachable(env: SimEnv, config: PipelineConfig, rois: Sequence[LazyROI]) -> Callable[[object], bool]:
+def pick_reachable(
+    env: SimEnv, config: PipelineConfig, rois: Sequence[LazyROI], plans: PlanCache | None = None,
+) -> Callable[[object], bool]:
     """``reachable`` for ``ground_lazily``: the whole pick's IK plan and its clearance from the
     other objects of the grasp's ROI (``plan_pick``), as ``perceive`` checks it (always True
-    when ``config.ik_filter`` is off)."""
+    when ``config.ik_filter`` is off). ``plans`` keeps the plans made, for ``relocate_choice``."""
     from .episode import plan_pick
     from .pipeline import GraspCandidate
 
@@ -192,20 +195,22 @@ def pick_reachable(env: SimEnv, config: PipelineConfig, rois: Sequence[LazyROI])
 
     def reachable(grasp: object) -> bool:
         assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
-        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick, heights_of(grasp)) is None
+        return not config.ik_filter or plan_pick(env, grasp.pose, config.pick, heights_of(grasp), plans) is None
 
     return reachable
 
 
 def relocate_choice(
     env: SimEnv, config: PipelineConfig, obs: Observation, roi: LazyROI, grasp: object,
+    plans: PlanCache | None = None,
 ) -> tuple[object, str]:
     """The robot's side of ``pipeline.relocated_grasp``: the chosen ``grasp`` of ``roi``, moved
     along its object when the overhead depth shows its approach blocked (``sim/relocate.py``),
     and why ("" when clear; the grasp itself when the policy is off). The spots are tried in the
     evaluation's order: the network grasps after the chosen one come from the same
     ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
-    Costs one clearance check of the chosen pick when its approach is clear."""
+    Costs one clearance check of the chosen pick when its approach is clear (and no IK plan,
+    given the ``plans`` ``pick_reachable`` made)."""
     from .pipeline import GraspCandidate, relocate_candidate, with_refinements
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
@@ -217,6 +222,9 @@ def relocate_choice(
         return bool(np.array_equal(pose.position, chosen.position)) and (pose.yaw, pose.width_m) == (
             chosen.yaw, chosen.width_m)
 
-    listed = with_refinements(list(roi.raw), roi.material, obs, env.scene.layout.table_z, config)
-    others = [c.pose for c in listed if c.pose is not None and not is_chosen(c.pose)]
-    return relocate_candidate(env, obs, roi.mask, roi.material, grasp, others, config)
+    def others() -> Iterator[TopDownGrasp]:  # only when the chosen grasp's own spots are all blocked
+        assert roi.material is not None
+        listed = with_refinements(list(roi.raw), roi.material, obs, env.scene.layout.table_z, config)
+        yield from (c.pose for c in listed if c.pose is not None and not is_chosen(c.pose))
+
+    return relocate_candidate(env, obs, roi.mask, roi.material, grasp, others(), config, plans)

@@ -187,6 +187,7 @@ def _plan(
 
 def plan_pick(
     env: SimEnv, grasp: TopDownGrasp, config: PickConfig | None = None, obstacles: HeightMap | None = None,
+    plans: PlanCache | None = None,
 ) -> str | None:
     """Check a pick without moving: None if every waypoint is reachable (and, given the
     ``obstacles`` the overhead depth shows, clear of them), else what is wrong.
@@ -195,17 +196,32 @@ def plan_pick(
     its own depth frame are information a real controller has before it moves).
     """
     cfg = config or PickConfig()
-    unreachable, blocked = pick_problems(env, grasp, cfg, obstacles if cfg.clearance.enabled else None)
+    unreachable, blocked = pick_problems(env, grasp, cfg, obstacles if cfg.clearance.enabled else None, plans)
     return unreachable or blocked
+
+
+#: plans already made, by grasp and arm posture (``pick_problems``' ``plans``)
+PlanCache = dict[tuple[bytes, float, float, bytes, int], "_Plan | str"]
 
 
 def pick_problems(
     env: SimEnv, grasp: TopDownGrasp, config: PickConfig, obstacles: HeightMap | None,
+    plans: PlanCache | None = None,
 ) -> tuple[str | None, str | None]:
     """(why the pick is unreachable, what its approach would touch among ``obstacles``), from one
     plan; the second is None when the pick is unreachable or no ``obstacles`` are given.
-    ``plan_pick`` is the filter; ``ClearanceConfig.prefer`` uses the second answer alone."""
-    plan = _plan(env.robot, env.scene, grasp, config)
+    ``plan_pick`` is the filter; ``ClearanceConfig.prefer`` uses the second answer alone.
+
+    ``plans``: reuse a plan made before for the same grasp from the same arm posture with the
+    same settings (the robot's path plans the chosen grasp's IK, then checks its clearance for
+    relocation: one plan, not two). The plan is a function of exactly these inputs."""
+    key = (np.asarray(grasp.position, np.float64).tobytes(), float(grasp.yaw), float(grasp.width_m),
+           env.robot.joint_positions().tobytes(), id(config))
+    plan = plans.get(key) if plans is not None else None
+    if plan is None:
+        plan = _plan(env.robot, env.scene, grasp, config)
+        if plans is not None:
+            plans[key] = plan
     if isinstance(plan, str):
         return plan, None
     return None, None if obstacles is None else obstructed(env.robot, plan, obstacles, config.clearance)

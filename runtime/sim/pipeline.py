@@ -53,7 +53,7 @@ the antipodal sampler are seeded, and no wall-clock value enters a result.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from functools import cache
@@ -74,7 +74,7 @@ from ..perception.segment import SegmentConfig, segment
 from .assets import object_catalog
 from .clearance import HeightMap, heights_around, heights_excluding
 from .env import SimEnv
-from .episode import Outcome, PickConfig, PickResult, execute_pick, pick_problems
+from .episode import Outcome, PickConfig, PickResult, PlanCache, execute_pick, pick_problems
 from .fingers import FingerGeometry as FingerGeometry
 from .fingers import SurfacePoints
 from .fingers import finger_check as finger_check
@@ -874,7 +874,7 @@ def relocated_grasp(
 
 def relocate_candidate(
     env: SimEnv, obs: Observation, mask: BoolMask, material: FloatArray, grasp: GraspCandidate,
-    others: Sequence[TopDownGrasp], config: PipelineConfig,
+    others: Iterable[TopDownGrasp], config: PipelineConfig, plans: PlanCache | None = None,
 ) -> tuple[GraspCandidate, str]:
     """What both paths share (``relocated_grasp``, ``choose.relocate_choice``): the search over
     the region's own depth points (``material``) against the height map of everything outside
@@ -888,7 +888,7 @@ def relocate_candidate(
     heights = heights_excluding(world, raised, mask, table_z, config.pick.clearance)
     result = relocate_if_blocked(
         grasp.pose, others, material, heights,
-        lambda g, h: pick_problems(env, g, config.pick, h),
+        lambda g, h: pick_problems(env, g, config.pick, h, plans),
         lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig())
     if not result.moved:
         return grasp, result.detail

@@ -24,7 +24,7 @@ quality (as a refinement does), so no choice changes; what changes is where the 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,7 +87,7 @@ class Relocation:
 
 def relocate_if_blocked(
     pose: TopDownGrasp,
-    others: Sequence[TopDownGrasp],
+    others: Iterable[TopDownGrasp],
     material: FloatArray,
     heights: HeightMap,
     problems: Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]],
@@ -98,8 +98,8 @@ def relocate_if_blocked(
     """``pose`` if its approach is clear, else the first spot that fits the fingers and whose
     pick is reachable and clear (``problems``: ``episode.pick_problems`` bound to the env and pick
     settings), else ``pose`` unchanged (the detail says so). Spots, in order: ``relocations`` of
-    ``pose``, then each of ``others`` (the region's next network grasps, best first) and its
-    relocations."""
+    ``pose``, then each of ``others`` (the region's next network grasps, best first; read only
+    this far, so the caller may compute them lazily) and its relocations."""
     _, touched = problems(pose, heights)
     if touched is None:
         return Relocation(pose, False, "")
