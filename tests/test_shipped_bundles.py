@@ -114,6 +114,7 @@ def test_a_build_is_byte_identical_on_the_same_machine(cold_cache: Path, tmp_pat
     config = BuildConfig(prompt_version="v2", energy_form="sum-tanh", provider="curated", model="craft-e-curators",
                          verbs_file=VOCAB_DIR / "union_verbs.txt", objects_file=VOCAB_DIR / "union_objects.txt",
                          out=tmp_path / "a", name="conceptnet", mode="conceptnet", cache_root=cold_cache, tau=0.5)
+    shutil.rmtree(cold_cache / "embeddings", ignore_errors=True)  # the module's earlier rebuilds filled it
     first = build(config)
     shutil.rmtree(cold_cache / "embeddings", ignore_errors=True)
     second = build(config.model_copy(update={"out": tmp_path / "b"}))
