@@ -16,7 +16,14 @@ import pybullet as p
 import pytest
 
 from craft_e.runtime.grasp.geometry import TopDownGrasp
-from craft_e.runtime.sim.clearance import ClearanceConfig, HandBox, HeightMap, arm_hits, hand_hits
+from craft_e.runtime.sim.clearance import (
+    ClearanceConfig,
+    HandBox,
+    HeightMap,
+    arm_hits,
+    first_hit,
+    hand_hits,
+)
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.gripper import GripperConfig
 from craft_e.runtime.sim.hands import HAND_NAMES, PANDA, hand_spec
@@ -80,6 +87,29 @@ def test_arm_capsules_touch_only_surfaces_within_their_radius() -> None:
     assert arm_hits(low, hm, CFG) is not None
     assert arm_hits(high, hm, CFG) is None
     assert arm_hits(beside, hm, CFG) is None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_first_hit_of_many_poses_is_the_pose_by_pose_answer(seed: int) -> None:
+    """``first_hit`` (one lookup per box and one for the arm, ``episode.obstructed``) answers what
+    ``hand_hits`` then ``arm_hits``, pose by pose, answer first: the same string, including its
+    centimetres, on random clutter and random approaches, blocked at various poses or not at all."""
+    rng = np.random.default_rng(seed)
+    clutter = np.concatenate([block(*sorted(rng.uniform(0.2, 0.6, 2)), *sorted(rng.uniform(-0.2, 0.2, 2)),
+                                    float(rng.uniform(0.02, 0.30))) for _ in range(4)])
+    hm = HeightMap(clutter, CFG.cell, 0.0)
+    answers = set()
+    for boxes in (PANDA.clearance_boxes, hand_spec("robotiq_2f85").clearance_boxes):
+        for _ in range(25):
+            c = int(rng.integers(1, 10))
+            tcp = np.column_stack([rng.uniform(0.2, 0.6, c), rng.uniform(-0.2, 0.2, c), rng.uniform(0.0, 0.4, c)])
+            yaws = [float(y) for y in rng.uniform(-math.pi, math.pi, c)]
+            joints = tcp[:, None, :] + rng.uniform(-0.15, 0.15, (c, 5, 3)) + np.array([0.0, 0.0, 0.2])
+            expected = next((why for i in range(c) if (why := hand_hits(tcp[i], yaws[i], boxes, hm, CFG)
+                                                       or arm_hits(joints[i], hm, CFG)) is not None), None)
+            assert first_hit(tcp, yaws, joints, boxes, hm, CFG) == expected
+            answers.add(expected is None)
+    assert answers == {True, False}  # both clear and blocked approaches were compared
 
 
 def _link_boxes_in_tcp_frame(hand: str) -> list[FloatArray]:

@@ -57,7 +57,7 @@ _FORMS = "sum-tanh | normalized-product | specificity | required-veto | specific
 KbDirOpt = Annotated[Path | None, typer.Option(help="Folder of the baseline bundles (conceptnet/, direct-llm/).")]
 JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")]
 MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.")]
-TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated).")]
+TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
 EnergyFormOpt = Annotated[str | None, typer.Option(help=f"E_aff form: {_FORMS} (default: each bundle's).")]
 ThreadsOpt = Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")]

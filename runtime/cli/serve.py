@@ -27,7 +27,7 @@ def serve_cmd(
     threads: Annotated[int, typer.Option(min=1, help="Torch threads of the image encoder.")] = 1,
     max_rois: Annotated[int, typer.Option(min=1, help="Most ROIs accepted in one request (422 above).")] = 64,
     max_body_bytes: Annotated[int, typer.Option(min=1024, help="Largest /ground body in bytes (413 above).")] = 2 * 1024 * 1024,
-    temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: calibrated 0.06; see docs/robustness.md).")] = None,
+    temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")] = None,
     open_vocab: Annotated[bool, typer.Option(help="Ground verbs the KB lacks via similar KB verbs (else 404).")] = False,
     trusted_key: Annotated[list[Path] | None, typer.Option("--trusted-key", help="Signer key for a .craft package.")] = None,
     log_level: Annotated[str, typer.Option(help="uvicorn log level: critical | error | warning | info | debug.")] = "info",

@@ -21,14 +21,19 @@ def measure_extents(points: npt.NDArray[np.floating], table_z: float) -> tuple[f
     """``points`` ``[M, 3]`` (world frame, z up; NaN rows ignored) of one object above a table at
     ``table_z``; ``None`` when too few points to measure."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
+    pts = pts[np.isfinite(pts.sum(axis=1))]  # a row is finite iff its sum is (metres: no overflow)
     if len(pts) < MIN_POINTS:
         return None
-    height = float(np.percentile(pts[:, 2], TOP_PERCENTILE)) - table_z
     xy = pts[:, :2] - pts[:, :2].mean(axis=0)
     _, axes = np.linalg.eigh(np.cov(xy.T))
     along = xy @ axes  # [M, 2]
-    spans = np.percentile(along, 100 - EDGE_PERCENTILE, axis=0) - np.percentile(along, EDGE_PERCENTILE, axis=0)
+    # one percentile call for the three columns (height, both spans): the same order statistics
+    # and interpolation as one call each, at a third of numpy's per-call cost (the robot measures
+    # every ROI of every frame)
+    q = np.percentile(np.column_stack([pts[:, 2], along]), [TOP_PERCENTILE, 100 - EDGE_PERCENTILE, EDGE_PERCENTILE],
+                      axis=0)  # [3 percentiles, 3 columns]
+    height = float(q[0, 0]) - table_z
+    spans = q[1, 1:] - q[2, 1:]
     edges = sorted((float(spans[0]), float(spans[1]), height), reverse=True)
     if edges[2] <= 0:
         return None

@@ -24,6 +24,7 @@ the objects: only depth pixels and the robot's own geometry.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Sequence
@@ -128,13 +129,17 @@ def heights_excluding(
     return HeightMap(world[raised & ~target_mask], cfg.cell, table_z)
 
 
+@functools.cache
 def _box_bottom_points(box: HandBox, step: float) -> FloatArray:
-    """``[n, 2]`` (x, y) samples of a box's footprint in the TCP frame, both sides if mirrored."""
+    """``[n, 2]`` (x, y) samples of a box's footprint in the TCP frame, both sides if mirrored
+    (read-only, made once per box and step: every pose of every check samples the same points)."""
     xs = np.linspace(-box.half_x, box.half_x, max(2, math.ceil(2 * box.half_x / step) + 1))
     ys = np.linspace(box.y_lo, box.y_hi, max(2, math.ceil((box.y_hi - box.y_lo) / step) + 1))
     gx, gy = np.meshgrid(xs, ys)
     pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    return np.concatenate([pts, pts * np.array([1.0, -1.0])]) if box.mirrored else pts
+    out = np.concatenate([pts, pts * np.array([1.0, -1.0])]) if box.mirrored else pts
+    out.flags.writeable = False
+    return out
 
 
 def hand_hits(
@@ -149,8 +154,61 @@ def hand_hits(
         seen = obstacles.heights(xy)
         bottom = float(tcp_xyz[2]) + box.z_lo
         if np.any(seen > bottom - cfg.margin):
-            part = "a finger" if box.mirrored else "the hand"
-            return f"{part} would touch a surface {100 * (seen.max() - bottom):.1f} cm above its bottom"
+            return _hand_message(box, float(seen.max()), bottom)
+    return None
+
+
+def _hand_message(box: HandBox, highest: float, bottom: float) -> str:
+    part = "a finger" if box.mirrored else "the hand"
+    return f"{part} would touch a surface {100 * (highest - bottom):.1f} cm above its bottom"
+
+
+def _arm_message(height: float) -> str:
+    return f"the arm would touch a surface {100 * height:.1f} cm high"
+
+
+def first_hit(
+    tcp_xyz: FloatArray, yaws: Sequence[float], joint_xyz: FloatArray, boxes: Sequence[HandBox],
+    obstacles: HeightMap, cfg: ClearanceConfig,
+) -> str | None:
+    """What the first of several poses would touch: ``hand_hits`` then ``arm_hits`` of each pose
+    in order (TCPs ``[C, 3]``, closing axes ``[C]``, joint positions ``[C, k, 3]``), the same
+    answer, to the character, as calling them pose by pose (``tests/test_clearance.py``).
+
+    Why: a pick's approach is checked at ~9 poses, each with a handful of boxes and arm segments,
+    and each of those was a height-map lookup of a few dozen points: numpy's per-call overhead,
+    not arithmetic, made the chosen pick's check ~15 ms on the robot's path. Here every box's
+    points at every pose are one lookup, and every arm segment of every pose another: the same
+    elementwise arithmetic on the same points, so the same heights and the same verdict."""
+    c = len(yaws)
+    if c == 0:
+        return None
+    tcp = np.asarray(tcp_xyz, dtype=np.float64)
+    closing = np.array([[math.cos(y), math.sin(y)] for y in yaws])  # [C, 2]
+    across = np.stack([-closing[:, 1], closing[:, 0]], axis=1)  # [C, 2]
+    hand_seen: list[tuple[FloatArray, FloatArray]] = []  # per box: heights [C, n], bottoms [C]
+    for box in boxes:
+        local = _box_bottom_points(box, cfg.sample_step)  # [n, 2]
+        xy = tcp[:, None, :2] + local[None, :, :1] * across[:, None, :] + local[None, :, 1:] * closing[:, None, :]
+        seen = obstacles.heights(xy.reshape(-1, 2)).reshape(c, len(local))
+        hand_seen.append((seen, tcp[:, 2] + box.z_lo))
+    joints = np.asarray(joint_xyz, dtype=np.float64)
+    segments: list[FloatArray] = []  # [n, 3] points of each pose's segments, pose-major
+    for pose_joints in joints:
+        for a, b in itertools.pairwise(pose_joints):
+            n = max(2, math.ceil(float(np.linalg.norm(b - a)) / cfg.sample_step) + 1)
+            segments.append(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a))
+    arm_seen = obstacles.heights(np.concatenate(segments)[:, :2], cfg.arm_radius) if segments else np.zeros(0)
+    per_pose = len(segments) // c
+    bounds = np.cumsum([0] + [len(seg) for seg in segments])
+    for i in range(c):
+        for box, (seen, bottom) in zip(boxes, hand_seen, strict=True):
+            if np.any(seen[i] > bottom[i] - cfg.margin):
+                return _hand_message(box, float(seen[i].max()), float(bottom[i]))
+        for k in range(i * per_pose, (i + 1) * per_pose):
+            pts, seen_k = segments[k], arm_seen[bounds[k]:bounds[k + 1]]
+            if np.any(seen_k > pts[:, 2] - cfg.arm_radius):
+                return _arm_message(float(seen_k[int(np.argmax(seen_k - pts[:, 2]))]))
     return None
 
 
@@ -161,6 +219,5 @@ def arm_hits(joint_xyz: FloatArray, obstacles: HeightMap, cfg: ClearanceConfig) 
         pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)  # [n, 3]
         seen = obstacles.heights(pts[:, :2], cfg.arm_radius)
         if np.any(seen > pts[:, 2] - cfg.arm_radius):
-            low = int(np.argmax(seen - pts[:, 2]))
-            return f"the arm would touch a surface {100 * seen[low]:.1f} cm high"
+            return _arm_message(float(seen[int(np.argmax(seen - pts[:, 2]))]))
     return None

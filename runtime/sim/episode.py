@@ -23,7 +23,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from ..grasp.geometry import TopDownGrasp
-from .clearance import ClearanceConfig, HeightMap, arm_hits, hand_hits
+from .clearance import ClearanceConfig, HeightMap, first_hit
 from .env import EnvConfig, PhysicsConfig, SimEnv
 from .fingers import FingerGeometry
 from .gripper import GripperConfig
@@ -233,13 +233,12 @@ def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: Clearanc
     boxes = robot.gripper.hand.clearance_boxes
     start, pre = robot.joint_positions(), plan.pre.q
     path = [start + t * (pre - start) for t in np.linspace(0.0, 1.0, cfg.path_samples + 1)[1:]]
-    for q in [*path, plan.descent[-1].q]:
-        tcp = robot.forward(q)
-        why = hand_hits(tcp.position, tcp.yaw, boxes, obstacles, cfg) or arm_hits(
-            robot.joint_points(q, cfg.arm_joints), obstacles, cfg)
-        if why is not None:
-            return f"approach blocked: {why}"
-    return None
+    poses = [*path, plan.descent[-1].q]
+    tcps = [robot.forward(q) for q in poses]
+    # the poses in order, hand before arm: hand_hits / arm_hits pose by pose, in one lookup each
+    why = first_hit(np.array([t.position for t in tcps]), [t.yaw for t in tcps],
+                    np.array([robot.joint_points(q, cfg.arm_joints) for q in poses]), boxes, obstacles, cfg)
+    return None if why is None else f"approach blocked: {why}"
 
 
 def _body_z(scene: Scene, body: int) -> float:
