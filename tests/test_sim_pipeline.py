@@ -31,6 +31,8 @@ from craft_e.runtime.sim.pipeline import (
 )
 from craft_e.runtime.sim.scene import SceneSpec
 
+ROOT = Path(__file__).resolve().parents[1]
+
 # The episode test of test_sim_episode.py: the oracle grasp of the bottle is known to succeed.
 EASY = SceneSpec(verb="pour", target="mustard_bottle",
                  distractors=("foam_brick", "knife", "apple", "stapler_2"), seed=2)
@@ -213,3 +215,43 @@ def test_colours_are_measured_only_for_a_grounder_that_reads_them(env: SimEnv, e
     coloured = Grounder(bundle, GroundingSettings(vocabulary=list(sim_vocabulary()), colour_cue=True))
     result = run_episode(env, EASY, {"coloured": coloured}, encoder, config)
     assert all(r.colours is not None for r in grounding_rois(result.perception))
+
+
+def test_sim_demo_replays_an_evaluation_episode_by_its_id(tmp_path: Path) -> None:
+    """``--episode cut/knife/1`` rebuilds the scene ``craft eval sim`` ran under that id (the
+    committed dev table's distractors and layout seed) and records the same outcome, so a finding
+    about one episode can be re-run with a figure and a GIF."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli.main import app
+
+    published = next(e for e in json.loads((ROOT / "docs/results/sim_grconvnet.json").read_text(encoding="utf-8"))["episodes"]
+                     if e["id"] == "cut/knife/1")
+    result = CliRunner().invoke(app, ["sim", "demo", "--verb", "cut", "--episode", "cut/knife/1",
+                                      "--gif-every", "240", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    record = json.loads((tmp_path / "cut_knife_1.json").read_text())
+    assert (record["id"], record["scene_seed"], record["distractors"]) == (
+        "cut/knife/1", published["scene_seed"], published["distractors"])
+    (mine,) = record["methods"].values()
+    assert (mine["failure"], mine["relocation"]) == (published["methods"]["CRAFT-E"]["failure"],
+                                                      published["methods"]["CRAFT-E"]["relocation"])
+    assert "touching the wood block" in result.output  # where the descent ended: the arm met the block
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--verb", "cut", "--episode", "cut/knife"], "use verb/object/layout"),
+    (["--verb", "pour", "--episode", "cut/knife/1"], "pass --verb 'cut'"),
+    (["--verb", "cut", "--episode", "cut/teapot/0"], "'teapot' is not among 'cut'"),
+    (["--verb", "cut", "--episode", "cut/knife/1", "--seed", "2"], "drop --target and --seed"),
+])
+def test_sim_demo_names_what_is_wrong_with_an_episode_id(args: list[str], message: str) -> None:
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli.main import app
+
+    result = CliRunner().invoke(app, ["sim", "demo", *args])
+    assert result.exit_code != 0
+    assert message in " ".join(result.output.split())

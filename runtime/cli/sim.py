@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from . import episodes as ep
+
+if TYPE_CHECKING:
+    from ..evaluation.sim_eval import EpisodeSpec, LabelPair, SimLabels
+    from ..sim.env import EnvConfig
 
 
 def demo(
@@ -19,6 +24,9 @@ def demo(
     labels: Annotated[Path | None, typer.Option(help="Labels CSV the target and distractors come from "
                                                      "(default: artifacts/labels/sim_dev_labels.csv).")] = None,
     target: Annotated[str | None, typer.Option(help="Target asset id or plain name among the verb's pairs.")] = None,
+    episode: Annotated[str | None, typer.Option(
+        help="Replay one episode of `craft eval sim` (its default seed 0) by its id, verb/object/layout as "
+             "in the results JSON, e.g. cut/knife/1: the same scene, here with a figure and a GIF.")] = None,
     grasp: Annotated[str, typer.Option(help="grconvnet | ggcnn | ggcnn2 | antipodal | oracle.")] = "grconvnet",
     rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
     gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
@@ -71,13 +79,20 @@ def demo(
     pairs = [p for p in all_labels.pairs if p.verb == name]
     if not pairs:
         fail(f"verb {name!r} has no pairs in {all_labels.path}; it has: {', '.join(all_labels.verbs)}")
-    if target is not None:
-        pairs = [p for p in pairs if target in (p.object, *p.assets)]
-        if not pairs:
-            fail(f"{target!r} does not afford {name!r} in {all_labels.path}")
-    pair = pairs[seed % len(pairs)]
-    chosen_labels = SimLabels(all_labels.path, (pair,), all_labels.affording)
-    spec = make_episode_specs(chosen_labels, layouts=1, seed=seed)[0]
+    if episode is not None:
+        if target is not None or seed != 0:
+            fail(f"--episode {episode} names a fixed scene: drop --target and --seed")
+        spec = _evaluation_episode(episode, name, pairs, all_labels, env_config)
+        stem = episode.replace("/", "_").replace(" ", "_")
+    else:
+        if target is not None:
+            pairs = [p for p in pairs if target in (p.object, *p.assets)]
+            if not pairs:
+                fail(f"{target!r} does not afford {name!r} in {all_labels.path}")
+        pair = pairs[seed % len(pairs)]
+        chosen_labels = SimLabels(all_labels.path, (pair,), all_labels.affording)
+        spec = make_episode_specs(chosen_labels, layouts=1, seed=seed)[0]
+        stem = f"{name.replace(' ', '_')}_{seed}"
     bundle_path = kb or KB_DIR / "craft-e-default"
     try:
         bundle = load_bundle(bundle_path)
@@ -106,13 +121,38 @@ def demo(
         if not recorder.frames:  # nothing was executed: a still of the scene
             recorder.snapshot()
     out.mkdir(parents=True, exist_ok=True)
-    stem = f"{name.replace(' ', '_')}_{seed}"
     png = plot_episode(result, method, out / f"{stem}.png", gripper=gripper)
     gif = recorder.save(out / f"{stem}.gif")
     record = episode_record(spec, result)
     (out / f"{stem}.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     console.print(describe(result, method, gripper=gripper), highlight=False, markup=False, soft_wrap=True)
     err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False, markup=False)
+
+
+def _evaluation_episode(
+    episode: str, verb: str, pairs: Sequence[LabelPair], labels: SimLabels, env_config: EnvConfig,
+) -> EpisodeSpec:
+    """The scene ``craft eval sim`` (seed 0, the same labels) runs as ``episode``
+    (``verb/object/layout``): a pair's layouts are drawn from the pair alone, so building that one
+    pair's layouts reproduces it without the rest of the file."""
+    from ..evaluation.sim_eval import SimLabels, make_episode_specs
+    from .common import fail
+
+    head, _, layout_text = episode.rpartition("/")
+    episode_verb, _, obj = head.partition("/")
+    if not (episode_verb and obj and layout_text.isdigit()):
+        fail(f"--episode {episode!r}: use verb/object/layout as in the results JSON, e.g. cut/knife/1")
+    if episode_verb != verb:
+        fail(f"--episode {episode} is a {episode_verb!r} episode, not {verb!r}: pass --verb {episode_verb!r}")
+    pair = next((p for p in pairs if p.object == obj), None)
+    if pair is None:
+        fail(f"--episode {episode}: {obj!r} is not among {verb!r}'s objects in {labels.path} "
+             f"({', '.join(p.object for p in pairs)})")
+    layout = int(layout_text)
+    specs = make_episode_specs(SimLabels(labels.path, (pair,), labels.affording), layouts=layout + 1,
+                               env_config=env_config)
+    assert specs[layout].id == episode, (specs[layout].id, episode)
+    return specs[layout]
 
 
 def collision_meshes(
