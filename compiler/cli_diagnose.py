@@ -34,7 +34,11 @@ def register(app: typer.Typer) -> None:
         from ..runtime.grounding.energies import ENERGY_FORMS, check_energy_form
         from ..runtime.grounding.grounder import affordance_energy_in_form
         from ..runtime.kb.bundle import BundleError, load_bundle
-        from ..runtime.kb.diagnostics import bundle_diagnostics, markdown_summary
+        from ..runtime.kb.diagnostics import (
+            bundle_diagnostics,
+            dead_property_notes,
+            markdown_summary,
+        )
 
         if format not in ("md", "json"):
             fail(f"unknown format {format!r}; use md or json")
@@ -56,3 +60,6 @@ def register(app: typer.Typer) -> None:
             return
         sys.stdout.write(f"## Discrimination diagnostics of `{kb.manifest.kb_name}` "
                          f"{kb.manifest.kb_version}\n\n" + markdown_summary(columns))
+        dead = sorted({p for c in columns.values() for p in c["properties_reaching_no_object"]})
+        if dead:  # the same for every form: whether an edge reaches tau does not depend on it
+            sys.stdout.write("\nProperties reaching no object:\n" + "\n".join(dead_property_notes(kb, dead)) + "\n")

@@ -82,3 +82,23 @@ def test_report_diff_and_diagnose_carry_them(kb_a: FixtureKB, kb_scoop_v2: Fixtu
     assert forms["sum-tanh"] == result["diagnostics"]["a"]
     bad = CliRunner().invoke(app, ["diagnose", str(kb_a.bundle), "--energy-form", "veto"])
     assert bad.exit_code == 2 and "unknown E_aff form" in bad.output
+
+
+def test_diagnose_says_why_a_property_reaches_no_object() -> None:
+    """The Markdown report names each dead property, the verbs leaning on it and its strongest
+    object edges below tau: in the shipped v1 KB, the six dead ends issue 9 listed; in the
+    default KB the one left, a property no object of the vocabulary has (raw fibre)."""
+    from craft_e.paths import KB_DIR
+
+    v1 = CliRunner().invoke(app, ["diagnose", str(KB_DIR / "craft-e-v1")])
+    assert v1.exit_code == 0, v1.output
+    dead = [line for line in v1.output.splitlines() if line.startswith("- ") and "used by" in line]
+    assert [line.split(":")[0][2:] for line in dead] == [
+        "has a net", "has a probe", "has a teat", "has a wick", "is an award", "worn on the wrist"]
+    assert "- has a teat: used by feed (0.40); strongest object edges none (tau 0.5)" in dead
+    default = CliRunner().invoke(app, ["diagnose", str(KB_DIR / "craft-e-default")])
+    assert default.exit_code == 0, default.output
+    report = json.loads((KB_DIR / "craft-e-default" / "report.json").read_text("utf-8"))
+    listed = [line.split(":")[0][2:] for line in default.output.splitlines()
+              if line.startswith("- ") and "used by" in line]
+    assert listed == report["diagnostics"]["properties_reaching_no_object"]  # each one explained

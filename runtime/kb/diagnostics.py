@@ -140,6 +140,28 @@ def bundle_diagnostics(bundle: Any, energy: npt.NDArray[Any] | None = None) -> d
     )
 
 
+def dead_property_notes(bundle: Any, names: Sequence[str], strongest: int = 3) -> list[str]:
+    """One line per property in ``names`` (ones reaching no object): the verbs that lean on it
+    with their ``w_vp``, and its strongest object edges, all below the bundle's tau.
+
+    Why: a count says the KB has a dead end, not what to do about it. The strongest edges tell a
+    KB author whether the vocabulary lacks such objects (the stage-2 answers scored the nearest
+    ones low, as they should) or whether an answer missed an object that has the property."""
+    from ..grounding.energies import weight_matrices_from_graph
+
+    m = bundle.manifest
+    w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
+    lines = []
+    for name in names:
+        p = m.properties.index(name)
+        verbs = [f"{m.verbs[v]} ({w_vp[v, p]:.2f})" for v in np.flatnonzero(w_vp[:, p] > 0).tolist()]
+        order = np.argsort(-w_po[p], kind="stable")[:strongest].tolist()  # ties: manifest order
+        best = [f"{m.objects[o]} {w_po[p, o]:.2f}" for o in order if w_po[p, o] > 0]
+        lines.append(f"- {name}: used by {', '.join(verbs) or 'no verb'}; strongest object edges "
+                     f"{', '.join(best) or 'none'} (tau {m.energy.tau:g})")
+    return lines
+
+
 #: Headline rows of a diagnostics comparison: (key, label, lower is better?).
 HEADLINE = (
     ("affordant_share", "affordant cells (E_aff < 0)", True),
