@@ -158,6 +158,13 @@ def hand_hits(
     return None
 
 
+def _segment_points(a: FloatArray, b: FloatArray, step: float) -> FloatArray:
+    """``[n, 3]`` points from ``a`` to ``b``, both ends included, at most ``step`` apart."""
+    n = max(2, math.ceil(float(np.linalg.norm(b - a)) / step) + 1)
+    out: FloatArray = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+    return out
+
+
 def _hand_message(box: HandBox, highest: float, bottom: float) -> str:
     part = "a finger" if box.mirrored else "the hand"
     return f"{part} would touch a surface {100 * (highest - bottom):.1f} cm above its bottom"
@@ -177,7 +184,7 @@ def first_hit(
 
     Why: a pick's approach is checked at ~9 poses, each with a handful of boxes and arm segments,
     and each of those was a height-map lookup of a few dozen points: numpy's per-call overhead,
-    not arithmetic, made the chosen pick's check ~15 ms on the robot's path. Here every box's
+    not arithmetic, was most of the chosen pick's check on the robot's path. Here every box's
     points at every pose are one lookup, and every arm segment of every pose another: the same
     elementwise arithmetic on the same points, so the same heights and the same verdict."""
     c = len(yaws)
@@ -195,9 +202,7 @@ def first_hit(
     joints = np.asarray(joint_xyz, dtype=np.float64)
     segments: list[FloatArray] = []  # [n, 3] points of each pose's segments, pose-major
     for pose_joints in joints:
-        for a, b in itertools.pairwise(pose_joints):
-            n = max(2, math.ceil(float(np.linalg.norm(b - a)) / cfg.sample_step) + 1)
-            segments.append(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a))
+        segments.extend(_segment_points(a, b, cfg.sample_step) for a, b in itertools.pairwise(pose_joints))
     arm_seen = obstacles.heights(np.concatenate(segments)[:, :2], cfg.arm_radius) if segments else np.zeros(0)
     per_pose = len(segments) // c
     bounds = np.cumsum([0] + [len(seg) for seg in segments])
@@ -215,8 +220,7 @@ def first_hit(
 def arm_hits(joint_xyz: FloatArray, obstacles: HeightMap, cfg: ClearanceConfig) -> str | None:
     """Would capsules around the segments joining ``joint_xyz`` ``[k, 3]`` touch a surface?"""
     for a, b in itertools.pairwise(joint_xyz):
-        n = max(2, math.ceil(float(np.linalg.norm(b - a)) / cfg.sample_step) + 1)
-        pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)  # [n, 3]
+        pts = _segment_points(a, b, cfg.sample_step)  # [n, 3]
         seen = obstacles.heights(pts[:, :2], cfg.arm_radius)
         if np.any(seen > pts[:, 2] - cfg.arm_radius):
             return _arm_message(float(seen[int(np.argmax(seen - pts[:, 2]))]))
