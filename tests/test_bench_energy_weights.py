@@ -1,0 +1,45 @@
+"""The leave-one-verb-out selection of ``benchmarks/bench_energy_weights.py`` (no images needed)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_energy_weights.py"
+
+
+def _script() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("bench_energy_weights", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_each_held_out_verb_is_scored_with_the_gamma_the_other_verbs_chose() -> None:
+    lvo = _script().leave_one_verb_out({
+        0.0: {"a": 1.0, "b": 0.0, "c": 0.5},
+        1.0: {"a": 0.5, "b": 0.5, "c": 0.5},
+    })
+    # holding out a: b and c prefer 1.0 (0.5 vs 0.25), which scores a at 0.5; holding out b:
+    # a and c prefer 0.0 (0.75 vs 0.5), b scores 0.0; holding out c: a and b tie at 0.5, and a
+    # tie goes to the paper's 1.0, c scores 0.5
+    assert lvo["chosen"] == {"a": 1.0, "b": 0.0, "c": 1.0}
+    assert lvo["held_out_mean"] == pytest.approx((0.5 + 0.0 + 0.5) / 3)
+    assert lvo["fixed_mean"] == {0.0: pytest.approx(0.5), 1.0: pytest.approx(0.5)}
+
+
+def test_a_verb_that_alone_favours_a_gamma_does_not_choose_it_for_itself() -> None:
+    lvo = _script().leave_one_verb_out({
+        0.0: {"cut": 0.9, "hit": 0.8, "eat": 0.9},
+        0.5: {"cut": 0.5, "hit": 0.9, "eat": 0.95},
+    })
+    assert lvo["chosen"]["cut"] == 0.5  # hit and eat prefer 0.5; cut's own 0.9 at 0 is not seen
+    assert lvo["chosen"]["hit"] == 0.0  # cut and eat: 0.9 at 0 vs 0.725 at 0.5
+    assert lvo["held_out_mean"] == pytest.approx((0.5 + 0.8 + 0.9) / 3)
+    swing = lvo["largest_swing"]
+    assert swing["unit"] == "cut"  # moves 0.4 with gamma; hit 0.1, eat 0.05
+    assert swing["fixed_mean_without"] == {0.0: pytest.approx(0.85), 0.5: pytest.approx(0.925)}
