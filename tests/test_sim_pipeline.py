@@ -92,9 +92,9 @@ def test_oracle_episode_runs_end_to_end_with_metrics(
         else:
             assert outcome.pick is None and outcome.failure is Failure.WRONG_OBJECT
             assert outcome.chosen_iou < 0.5
-            # the knowledge/perception split: re-grounded with the true classes
+            # the perception/knowledge/energies split: re-grounded with the true classes
             fixed = outcome.true_class_roi == per.target_roi
-            assert outcome.choice_error is (ChoiceError.PERCEPTION if fixed else ChoiceError.KNOWLEDGE)
+            assert (outcome.choice_error is ChoiceError.PERCEPTION) == fixed
         assert outcome.true_class_roi is not None
     chosen = {o.chosen_roi for o in result.outcomes.values()}
     again = run_episode(env, EASY, grounders, encoder, config)
@@ -105,7 +105,11 @@ def test_oracle_episode_runs_end_to_end_with_metrics(
 def test_true_class_probabilities_are_one_hot_on_the_covered_body(
     env: SimEnv, grounders: dict[str, Any], encoder: Any
 ) -> None:
-    from craft_e.runtime.sim.pipeline import true_class_choice, true_class_probabilities
+    from craft_e.runtime.sim.pipeline import (
+        true_class_choice,
+        true_class_grounding,
+        true_class_probabilities,
+    )
 
     env.reset(EASY)
     per = perceive(env, encoder, PipelineConfig(grasp="oracle", rois="oracle"))
@@ -120,6 +124,31 @@ def test_true_class_probabilities_are_one_hot_on_the_covered_body(
         assert grounder.vocabulary[int(np.argmax(p_true[n]))] == names[r.body]
     # with every object named right, CRAFT-E's knowledge picks the bottle to pour from
     assert true_class_choice(grounder, "pour", per, names) == per.target_roi
+    assert per.target_roi in true_class_grounding(grounder, "pour", per, names).kb_best
+    # nothing on this table affords "read" (every E_aff 0): the KB ranks no ROI first
+    assert true_class_grounding(grounder, "read", per, names).kb_best == ()
+
+
+def _perception_with_targets(ious: list[float]) -> Any:
+    """The two fields ``choice_error`` reads: the target's box and each ROI's IoU with it."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(target_box=(0, 0, 10, 10), rois=[SimpleNamespace(target_iou=v) for v in ious])
+
+
+def test_a_wrong_choice_is_perception_knowledge_or_energies() -> None:
+    from craft_e.runtime.sim.pipeline import TrueClassGrounding, choice_error
+
+    per = _perception_with_targets([0.0, 0.9, 0.0])  # ROI 1 is the target
+    # named right, grounding picks the target: the object was not recognised
+    assert choice_error(per, TrueClassGrounding(1, (1,)), 0.5) is ChoiceError.PERCEPTION
+    # named right, the KB still ranks ROI 2 strictly first: the knowledge is wrong
+    assert choice_error(per, TrueClassGrounding(2, (2,)), 0.5) is ChoiceError.KNOWLEDGE
+    # the KB ranks the target first (alone or tied) but grasp/alignment energies pick ROI 0
+    assert choice_error(per, TrueClassGrounding(0, (1,)), 0.5) is ChoiceError.ENERGIES
+    assert choice_error(per, TrueClassGrounding(0, (0, 1)), 0.5) is ChoiceError.ENERGIES
+    # no ROI usable under the re-grounding: nothing ranks the target, so it is not the energies
+    assert choice_error(per, TrueClassGrounding(None), 0.5) is ChoiceError.KNOWLEDGE
 
 
 def test_every_pick_restarts_from_the_saved_state(env: SimEnv, encoder: Any) -> None:

@@ -445,23 +445,27 @@ class SimReport:
 
     def failure_table(self) -> str:
         """Episodes per outcome class and method (the paper's failure analysis)."""
-        from ..sim.pipeline import Failure
+        from ..sim.pipeline import ChoiceError, Failure
 
         kinds = [f.value for f in Failure]
         used = [k for k in kinds if any(r.settings["failures"][k] for r in self.results)]
         if not used:
             return ""
-        split = ("wrong: perception", "wrong: knowledge")
-        rows = ["| Method | " + " | ".join(used) + " | " + " | ".join(split) + " | Detect, true class |",
+        split = [e.value for e in ChoiceError]
+        rows = ["| Method | " + " | ".join(used) + " | " + " | ".join(f"wrong: {e}" for e in split)
+                + " | Detect, true class |",
                 "|---|" + "---:|" * (len(used) + len(split) + 1)]
         for r in self.results:
             errors = r.settings["choice_errors"]
             rows.append(f"| {r.name} | " + " | ".join(str(r.settings["failures"][k]) for k in used)
-                        + f" | {errors['perception']} | {errors['knowledge']} | "
+                        + " | " + " | ".join(str(errors.get(e, 0)) for e in split) + " | "
                         + f"{100 * r.metrics['detect_true_class']:.1f} |")
         return ("Outcomes (episodes). A `wrong_object` episode is a *perception* error when re-grounding "
-                "it with p(o|r) set to every ROI's true class picks the target, else a *knowledge* error; "
-                "*Detect, true class* is Detect (percent) under that re-grounding.\n\n"
+                "it with p(o|r) set to every ROI's true class picks the target; otherwise a *knowledge* "
+                "error when, so named, the KB's E_aff ranks another ROI strictly ahead of the target (or finds "
+                "nothing affordant), and an "
+                "*energies* error when the KB ranks the target first but E_grasp and E_align move another "
+                "ROI ahead. *Detect, true class* is Detect (percent) under that re-grounding.\n\n"
                 + "\n".join(rows) + "\n")
 
 

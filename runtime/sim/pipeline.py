@@ -661,12 +661,16 @@ class ChoiceError(StrEnum):
     The episode is re-grounded with ``p(o | r)`` set to each ROI's true class (one-hot on the
     plain name of the body its mask covers most; ROIs over no body keep their perceived ``p``),
     everything else unchanged: a wrong choice that this fixes is a *perception* error (the
-    object was not recognised), one it does not fix a *knowledge* error (the KB, or the
-    alignment and grasp energies, prefer another object even when every object is named right).
+    object was not recognised). One it does not fix is a *knowledge* error when, with every
+    object named right, the KB's E_aff ranks another usable ROI strictly ahead of the target (or
+    finds nothing in the scene affordant), and an *energies* error when the KB ranks the target
+    first (ties included) but its grasp and alignment energies move another ROI ahead: the
+    knowledge was right, the balance of the paper's three energies was not.
     """
 
     PERCEPTION = "perception"
     KNOWLEDGE = "knowledge"
+    ENERGIES = "energies"
 
 
 @dataclass(frozen=True)
@@ -732,10 +736,24 @@ def true_class_probabilities(
     return p_true
 
 
-def true_class_choice(
+@dataclass(frozen=True)
+class TrueClassGrounding:
+    """The episode re-grounded with ``p(o | r)`` set to the true classes (``ChoiceError``)."""
+
+    roi: int | None  # the ROI chosen; None if no ROI is usable
+    # the usable ROIs whose E_aff alone is the lowest (ties: all); empty when that lowest is 0
+    kb_best: tuple[int, ...] = ()
+
+
+#: E_aff values this close count as a tie (float32 sums of the same weights in another order)
+E_AFF_TIE = 1e-6
+
+
+def true_class_grounding(
     grounder: Grounder, verb: str, perception: ScenePerception, body_names: Mapping[int, str]
-) -> int | None:
-    """The ROI ``grounder`` chooses when ``p(o | r)`` is the true class; None if none is usable.
+) -> TrueClassGrounding:
+    """What ``grounder`` chooses when ``p(o | r)`` is the true class, and which ROIs its E_aff
+    alone ranks first.
 
     Follows ``Grounder.ground``: ROIs without a grasp scoring above 0 are excluded, each ROI's
     best grasp gives ``E_grasp``, the lowest total energy wins (stable ties).
@@ -743,7 +761,7 @@ def true_class_choice(
     usable = [i for i, r in enumerate(perception.rois)
               if r.usable and max(c.quality for c in r.usable) > 0.0]
     if not usable:
-        return None
+        return TrueClassGrounding(None)
     emb = np.stack([perception.rois[i].embedding for i in usable])  # [N, d]
     gmax = np.array([max(c.quality for c in perception.rois[i].usable) for i in usable], np.float32)
     perceived = grounder.energies(verb, emb, gmax).p_obj  # [N, O]
@@ -751,7 +769,28 @@ def true_class_choice(
                              perception.target_body, perception.target_box, None, False, "")
     p_true = true_class_probabilities(grounder, perceived, subset, body_names)
     terms = grounder.energies(verb, emb, gmax, p_obj=p_true)
-    return usable[int(np.argsort(terms.total, kind="stable")[0])]
+    e_aff = np.asarray(terms.e_aff, dtype=np.float64)
+    low = float(e_aff.min())
+    # a KB that finds nothing in the scene affordant (every E_aff 0) ranks no ROI first
+    best = tuple(usable[k] for k in np.flatnonzero(e_aff <= low + E_AFF_TIE).tolist()) if low < -E_AFF_TIE else ()
+    return TrueClassGrounding(usable[int(np.argsort(terms.total, kind="stable")[0])], best)
+
+
+def true_class_choice(
+    grounder: Grounder, verb: str, perception: ScenePerception, body_names: Mapping[int, str]
+) -> int | None:
+    """The ROI ``grounder`` chooses when ``p(o | r)`` is the true class; None if none is usable."""
+    return true_class_grounding(grounder, verb, perception, body_names).roi
+
+
+def choice_error(perception: ScenePerception, true_class: TrueClassGrounding, detect_iou: float) -> ChoiceError:
+    """Why a ``wrong_object`` choice was wrong (see ``ChoiceError``)."""
+    def is_target(i: int) -> bool:
+        return perception.target_box is not None and perception.rois[i].target_iou >= detect_iou
+
+    if true_class.roi is not None and is_target(true_class.roi):
+        return ChoiceError.PERCEPTION
+    return ChoiceError.ENERGIES if any(is_target(i) for i in true_class.kb_best) else ChoiceError.KNOWLEDGE
 
 
 def chosen_region(
@@ -808,7 +847,8 @@ def run_episode(
         for name, grounder in grounders.items():
             grounding = grounder.ground(spec.verb, rois)
             chosen = grounding.chosen
-            true_roi = true_class_choice(grounder, spec.verb, perception, body_names)
+            true_class = true_class_grounding(grounder, spec.verb, perception, body_names)
+            true_roi = true_class.roi
             if chosen is None:
                 outcomes[name] = MethodOutcome(name, grounding, None, 0.0, None, False,
                                                not_detected(perception), None, None, true_roi,
@@ -819,9 +859,7 @@ def run_episode(
                 failure = not_detected(perception)
                 error = None
                 if failure is Failure.WRONG_OBJECT:
-                    fixed = true_roi is not None and perception.target_box is not None and (
-                        perception.rois[true_roi].target_iou >= cfg.detect_iou)
-                    error = ChoiceError.PERCEPTION if fixed else ChoiceError.KNOWLEDGE
+                    error = choice_error(perception, true_class, cfg.detect_iou)
                 outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
                                                False, failure, None, grasp, true_roi, error,
                                                retries=no_retries)
