@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from craft_e.runtime.sim.figures import descent_sentence, verdict
+from craft_e.runtime.sim.figures import choice_error_sentence, descent_sentence, verdict
 from craft_e.runtime.sim.pipeline import Failure
 
 
@@ -48,3 +48,13 @@ def test_the_descent_says_where_the_hand_stopped_and_on_what() -> None:
         "end of the descent: the hand stopped 13.9 cm above its grasp, touching the cracker box")
     assert descent_sentence(0.002, ("wood_block",)) == (
         "end of the descent: the hand reached its grasp, touching the wood block")
+
+
+def test_a_wrong_choice_says_whether_perception_knowledge_or_energies_lost_it() -> None:
+    assert choice_error_sentence(None, "wipe", "sponge", None) == ""
+    perception = choice_error_sentence("perception", "wipe", "sponge", 1)
+    assert "picks the sponge" in perception and "not recognised" in perception
+    assert "ground truth" in perception  # never mistaken for something the robot knows
+    assert "prefers another object for 'wipe'" in choice_error_sentence("knowledge", "wipe", "sponge", 0)
+    energies = choice_error_sentence("energies", "wipe", "sponge", 0)
+    assert "ranks the sponge first" in energies and "put roi0 ahead" in energies

@@ -171,6 +171,22 @@ def descent_sentence(gap: float, touching: tuple[str, ...]) -> str:
     return f"end of the descent: {where}" + (f", touching the {names}" if names else "")
 
 
+def choice_error_sentence(error: str | None, verb: str, target: str, true_class_roi: int | None) -> str:
+    """Why a wrong choice was wrong (``pipeline.ChoiceError``), from re-grounding the episode
+    with every region named by the simulator's ground truth: a diagnostic, not robot knowledge."""
+    target = target.replace("_", " ")
+    named = "with every object named right (the simulator's ground truth; the robot does not have it)"
+    if error == "perception":
+        return f"why: {named} grounding picks the {target}, so the {target} was not recognised"
+    if error == "knowledge":
+        return f"why: {named} the KB still prefers another object for '{verb}', or finds none here that affords it"
+    if error == "energies":
+        other = f"roi{true_class_roi}" if true_class_roi is not None else "another region"
+        return (f"why: {named} the KB ranks the {target} first, but the grasp and alignment energies "
+                f"put {other} ahead")
+    return ""
+
+
 def verdict(result: EpisodeResult, method: str) -> tuple[bool, str]:
     """(success, one plain sentence saying what happened), for the terminal and the figure.
 
@@ -212,6 +228,10 @@ def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) 
     if pick is not None and pick.descent_gap is not None and (
             pick.descent_gap > DESCENT_GAP_SHOWN or pick.touching):
         lines.append(descent_sentence(pick.descent_gap, pick.touching))
+    why = choice_error_sentence(outcome.choice_error.value if outcome.choice_error is not None else None,
+                                result.spec.verb, result.spec.target, outcome.true_class_roi)
+    if why:
+        lines.append(why)
     lines.append(verdict(result, method)[1])
     if outcome.retries:  # a retry policy ran after an empty hand (craft sim demo --retries)
         for k, a in enumerate(outcome.retries, 1):
