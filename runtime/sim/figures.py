@@ -172,7 +172,7 @@ def descent_sentence(gap: float, touching: tuple[str, ...]) -> str:
 
 
 def choice_error_sentence(error: str | None, verb: str, target: str, true_class_roi: int | None) -> str:
-    """Why a wrong choice was wrong (``pipeline.ChoiceError``), from re-grounding the episode
+    """Why a wrong choice was wrong (a ``pipeline.ChoiceError``, a str), from re-grounding the episode
     with every region named by the simulator's ground truth: a diagnostic, not robot knowledge."""
     target = target.replace("_", " ")
     named = "with every object named right (the simulator's ground truth; the robot does not have it)"
@@ -228,8 +228,7 @@ def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) 
     if pick is not None and pick.descent_gap is not None and (
             pick.descent_gap > DESCENT_GAP_SHOWN or pick.touching):
         lines.append(descent_sentence(pick.descent_gap, pick.touching))
-    why = choice_error_sentence(outcome.choice_error.value if outcome.choice_error is not None else None,
-                                result.spec.verb, result.spec.target, outcome.true_class_roi)
+    why = choice_error_sentence(outcome.choice_error, result.spec.verb, result.spec.target, outcome.true_class_roi)
     if why:
         lines.append(why)
     lines.append(verdict(result, method)[1])
