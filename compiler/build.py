@@ -75,15 +75,16 @@ class BuildConfig(BaseModel):
     verbs_file: Path
     objects_file: Path
     out: Path
-    name: str
-    kb_version: str = "1.0.0"
+    # the manifest's rules, checked here so a bad name fails before the build's work, not after
+    name: str = Field(pattern=r"^[a-z0-9][a-z0-9._-]*$")
+    kb_version: str = Field(default="1.0.0", pattern=r"^\d+\.\d+\.\d+$")
     mode: KnowledgeMode = "llm"
     provider: str = "curated"
     model: str = "craft-e-curators"
     cache_root: Path
     overrides_file: Path | None = None
     conceptnet: str = "omcs"
-    tau: float = 0.5
+    tau: float = Field(default=0.5, ge=0.0, le=1.0, allow_inf_nan=False)
     energy_form: EnergyForm = "sum-tanh"
     encoder_id: str = MINILM_ID
     force: bool = False

@@ -3,15 +3,17 @@
 A record is *referenced* when
 
 * a bundle under the bundle roots (by default every shipped bundle, ``artifacts/kb/*``) names
-  its key in ``graph.json`` provenance, or the record asks the same prompt@version about the
+  its key in ``graph.json`` provenance or in its perception knowledge (``object_sizes.json``,
+  ``object_colours.json``: a rebuild looks those records up and silently ships fewer sizes
+  without them), or the record asks the same prompt@version about the
   same subject for the same provider and model as one that is named (a *sibling*: the planners
   may need it to cover that subject, e.g. a stage-2b answer over objects that gained no edge,
   which no provenance names but a rebuild reads), or
 * a replay build of the given verbs/objects files in the given modes reads it: every record
   ``fetch_many`` returns, every record the stage-2 / 2b / direct planners count as covering an
   object, property or verb (a covering record that added no edge is still needed: without it
-  the planner would ask a new prompt, and replay would fail), and every key in the draft's
-  provenance.
+  the planner would ask a new prompt, and replay would fail), every key in the draft's
+  provenance, and every size and colour record the build looks up.
 
 Only the ``llm`` source folder is cleaned; other record sources and cached embeddings are left
 as they are.
@@ -37,6 +39,8 @@ from .llm_knowledge import (
     plan_object_calls,
     plan_property_calls,
 )
+from .object_colours import recorded_colours
+from .object_sizes import recorded_sizes
 from .sources.llm import LLMSource, PromptCall
 from .vocab import read_vocabulary
 
@@ -48,27 +52,56 @@ class ReferencesError(ValueError):
     """The references could not be determined (a bundle unreadable, no referencing input)."""
 
 
-def bundle_references(roots: Iterable[Path]) -> tuple[set[str], list[Path]]:
-    """Record keys named in the provenance of every bundle's ``graph.json`` under ``roots``.
+#: bundle files whose ``objects`` name the record each answer came from
+PERCEPTION_FILES = ("object_sizes.json", "object_colours.json")
 
-    A root is a bundle folder or a folder of bundles. Returns (keys, graph files read).
+
+def bundle_references(roots: Iterable[Path], *, strict: bool = True) -> tuple[set[str], list[Path]]:
+    """Record keys named by every bundle under ``roots``: ``graph.json`` provenance and the
+    records of its perception knowledge (``PERCEPTION_FILES``).
+
+    A root is a bundle folder or a folder of bundles. ``strict`` (roots the user named): a root
+    that does not exist is an error, since a mistyped path must not leave its bundle's records
+    unprotected; otherwise (the default root) it adds nothing. An existing folder without
+    bundles adds nothing (the caller refuses to clean when nothing references a record).
+    Returns (keys, graph files read).
     """
     keys: set[str] = set()
     graphs: list[Path] = []
     for root in roots:
+        if not root.is_dir() and not strict:
+            continue
+        if not root.is_dir():
+            raise ReferencesError(f"{root}: no such bundle folder (--bundles); check the path; nothing deleted")
         candidates = [root / "graph.json"] if (root / "graph.json").is_file() else sorted(
             root.glob("*/graph.json")
         )
         for path in candidates:
-            try:
-                if path.stat().st_size > 16 * MAX_RECORD_BYTES:
-                    raise ReferencesError(f"{path}: too large to be a bundle graph")
-                data = json.loads(path.read_bytes())
-            except (OSError, ValueError) as exc:
-                raise ReferencesError(f"{path}: unreadable bundle graph ({exc}); nothing deleted") from None
-            _collect(data, keys)
+            _collect(_read_json(path, "bundle graph"), keys)
+            for name in PERCEPTION_FILES:
+                extra = path.parent / name
+                if extra.is_file():
+                    _collect_records(_read_json(extra, name), keys)
             graphs.append(path)
     return keys, graphs
+
+
+def _read_json(path: Path, what: str) -> Any:
+    try:
+        if path.stat().st_size > 16 * MAX_RECORD_BYTES:
+            raise ReferencesError(f"{path}: too large to be a {what}")
+        return json.loads(path.read_bytes())
+    except (OSError, ValueError) as exc:
+        raise ReferencesError(f"{path}: unreadable {what} ({exc}); nothing deleted") from None
+
+
+def _collect_records(data: Any, keys: set[str]) -> None:
+    """The ``record`` key of each answer in a perception file's ``objects``."""
+    objects = data.get("objects") if isinstance(data, dict) else None
+    for entry in objects.values() if isinstance(objects, dict) else []:
+        key = entry.get("record") if isinstance(entry, dict) else None
+        if isinstance(key, str) and _KEY.match(key):
+            keys.add(key)
 
 
 def _collect(data: Any, keys: set[str]) -> None:
@@ -152,6 +185,10 @@ def build_references(
             if prompt_version != "v1":
                 by_verb, _ = plan_direct_calls(source, verbs, objects, glosses, senses)
                 keys |= {r.key for records in by_verb.values() for r in records}
+    if modes:  # every build looks up the objects' sizes and colours (never asks for them)
+        perception = LLMSource(cache=cache, provider=provider, model=model)
+        keys |= {s.record_key for s in recorded_sizes(perception, objects, glosses).values()}
+        keys |= {c.record_key for c in recorded_colours(perception, objects, glosses).values()}
     return keys | source.seen
 
 

@@ -75,7 +75,9 @@ CacheOpt = Annotated[
 def build(
     verbs: Annotated[Path, typer.Option(help="Verbs file: one verb per line.")],
     objects: Annotated[
-        Path, typer.Option(help="Objects file (default: the union vocabulary).")
+        Path, typer.Option(help="Objects file (default: artifacts/vocab/union_objects.txt, the "
+                           "benchmarks' union; the shipped craft-e-default uses default_objects.txt, "
+                           "see scripts/build_kbs).")
     ] = VOCAB_DIR / "union_objects.txt",
     provider: Annotated[
         str,
@@ -108,7 +110,9 @@ def build(
         Path | None, typer.Option(help="TOML file of edits compiled with provenance 'override'.")
     ] = None,
     out: Annotated[
-        Path | None, typer.Option(help="Output bundle folder (default artifacts/kb/<name>).")
+        Path | None,
+        typer.Option(help="Output bundle folder (default artifacts/kb/<name>, which is never "
+                     "replaced without --force)."),
     ] = None,
     name: Annotated[
         str, typer.Option(help="KB name (lowercase, digits, . _ -).")
@@ -131,7 +135,8 @@ def build(
     force: Annotated[
         bool,
         typer.Option(
-            help="Replace an existing bundle of another kb name at --out (never anything that is not a bundle)."
+            help="Replace an existing bundle of another kb name at --out, or any bundle at the default "
+            "output (never anything that is not a bundle)."
         ),
     ] = False,
     prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
@@ -222,7 +227,15 @@ def build(
             concurrency=concurrency,
         )
     except ValidationError as exc:
-        fail(f"bad option: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}")
+        first = exc.errors()[0]
+        option = "--" + str(first["loc"][0]).replace("_", "-")
+        hints = {"--name": " (lowercase letters, digits, '.', '_' and '-', e.g. my-kb)",
+                 "--kb-version": " (MAJOR.MINOR.PATCH, e.g. 1.0.0)", "--tau": " (a number in [0, 1])"}
+        fail(f"bad option {option} {first.get('input')!r}: {first['msg']}{hints.get(option, '')}; "
+             "nothing was built")
+    if out is None and (config.out / "manifest.json").is_file() and not force:
+        fail(f"{config.out}: a bundle already exists at the default output (artifacts/kb/{name}); "
+             "pass --out DIR for a new bundle, or --force to replace it (nothing was written)")
     try:
         with _progress(quiet) as bar:
             tasks: dict[str, TaskID] = {}
@@ -512,8 +525,9 @@ def cache_clean(
 ) -> None:
     """Drop llm records no build references (a dry run unless --yes).
 
-    Kept: every record a bundle's graph.json provenance names (and records of the same
-    provider, model, prompt and subject), and with --verbs every record a replay build of
+    Kept: every record a bundle's graph.json provenance or its object_sizes.json /
+    object_colours.json names (and records of the same provider, model, prompt and subject);
+    a --bundles path that does not exist is an error; and with --verbs every record a replay build of
     those inputs reads. SHA256SUMS stays consistent.
     """
     from .cache import CacheError, RecordCache
@@ -529,7 +543,8 @@ def cache_clean(
 
     store = RecordCache(cache)
     try:
-        keys, graphs = bundle_references(bundles or [KB_DIR])
+        keys, graphs = bundle_references(bundles, strict=True) if bundles else bundle_references(
+            [KB_DIR], strict=False)
         referenced = with_siblings(store, keys)
         if verbs is not None:
             referenced |= build_references(
@@ -579,7 +594,11 @@ def curate_record(
     cache: CacheOpt = CACHE_DIR,
     prompts: PromptsOpt = DEFAULT_PROMPT_VERSION,
 ) -> None:
-    """Store written answers as provider-'curated' records of their rendered prompts."""
+    """Store written answers as provider-'curated' records of their rendered prompts.
+
+    Every answer is validated before any is stored (a bad line stores nothing). A prompt that
+    already has a different stored answer is an error: stored answers are never rewritten.
+    """
     from .cache import RecordCache
     from .curate import CurationError, record_answers
     from .sources.llm import LLMSource, SourceError

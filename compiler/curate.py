@@ -82,22 +82,21 @@ def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
     return rows
 
 
-def _store(source: LLMSource, call: PromptCall, payload: dict[str, object], note: str) -> bool:
+def _record(source: LLMSource, call: PromptCall, payload: dict[str, object], note: str) -> Record:
     request = source.request_for(call)
-    key = request.key()
-    existing = source.cache.get(LLM_SOURCE, key)
-    record = Record(
-        key=key,
+    return Record(
+        key=request.key(),
         source=LLM_SOURCE,
         request=request,
         raw_response=json.dumps(payload, ensure_ascii=False, sort_keys=True),
         payload=payload,
         note=note,
     )
-    if existing is not None and existing == record:
-        return False
-    source.cache.put(record)
-    return True
+
+
+def _conflict(existing: Record, record: Record) -> bool:
+    """Does a stored record answer the same prompt differently? (Its note may differ.)"""
+    return (existing.raw_response, existing.payload) != (record.raw_response, record.payload)
 
 
 def record_answers(
@@ -111,9 +110,18 @@ def record_answers(
     version: str = DEFAULT_PROMPT_VERSION,
     glosses: dict[str, str] | None = None,
     verb_glosses: dict[str, str] | None = None,
+    replace: bool = False,
 ) -> CurationResult:
-    """Validate each answer in ``answers`` (JSONL) and store it as the record of its prompt."""
+    """Validate each answer in ``answers`` (JSONL) and store it as the record of its prompt.
+
+    Every answer is checked before any is stored, so a bad line leaves the cache as it was. A
+    stored answer is never rewritten: an answer to a prompt that already has a different one is an
+    error (a new answer needs a new prompt or prompt version), unless ``replace`` (a scratch
+    cache, e.g. a test simulating a provider that answered differently: the old answer is lost);
+    two answers to one prompt in the file are an error. Answers to prompts outside the verbs /
+    objects files are skipped."""
     result = CurationResult(0, 0, [])
+    ready: list[tuple[str, Record]] = []
     pending: dict[str, PromptCall] = {}
     senses = verb_glosses or {}
     if prompt_id == "object_properties":
@@ -137,6 +145,9 @@ def record_answers(
             if prompt_id == "verb_properties" and version == "v1":
                 vp = VerbProperties.model_validate(row)
                 payload = vp.model_dump(mode="json")
+                if normalize_verb(vp.verb) not in verbs:
+                    result.skipped.append(f"{where}: {vp.verb!r} is not in the verbs file")
+                    continue
                 call = verb_call(normalize_verb(vp.verb), version=version)
                 if len(vp.properties) != call.variables["k"]:
                     raise CurationError(
@@ -146,6 +157,9 @@ def record_answers(
                 vp2 = VerbPropertiesV2.model_validate(row)
                 payload = vp2.model_dump(mode="json")
                 verb = normalize_verb(vp2.verb)
+                if verb not in verbs:
+                    result.skipped.append(f"{where}: {vp2.verb!r} is not in the verbs file")
+                    continue
                 call = verb_call(verb, version=version, gloss=senses.get(verb, ""))
                 if not 3 <= len(vp2.properties) <= call.variables["k"]:
                     raise CurationError(
@@ -192,6 +206,9 @@ def record_answers(
                 payload = vo.model_dump(mode="json")
                 verb = normalize_verb(vo.verb)
                 if version == "v1":
+                    if verb not in verbs:
+                        result.skipped.append(f"{where}: {vo.verb!r} is not in the verbs file")
+                        continue
                     call = direct_call(verb, objects, version=version, glosses=glosses)
                 else:  # v2 grows incrementally: the pending call names only uncovered objects
                     if verb not in pending:
@@ -229,7 +246,27 @@ def record_answers(
             raise CurationError(
                 f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}"
             ) from None
-        if _store(source, call, payload, note):
+        ready.append((where, _record(source, call, payload, note)))
+    first_line: dict[str, str] = {}
+    for where, record in ready:
+        if record.key in first_line:
+            raise CurationError(
+                f"{where}: answers the same prompt as {first_line[record.key]}; keep one answer per "
+                "prompt (nothing was stored)"
+            )
+        first_line[record.key] = where
+        existing = source.cache.get(LLM_SOURCE, record.key)
+        if existing is not None and _conflict(existing, record) and not replace:
+            raise CurationError(
+                f"{where}: the prompt ({record.request.prompt} subject={record.request.subject!r}) "
+                f"already has a different stored answer (record {record.key[:12]}...); stored "
+                "answers are never rewritten: a new answer needs a new prompt or prompt version "
+                "(nothing was stored)"
+            )
+    for _, record in ready:
+        existing = source.cache.get(LLM_SOURCE, record.key)
+        if existing is None or (replace and _conflict(existing, record)):
+            source.cache.put(record)
             result.stored += 1
         else:
             result.unchanged += 1

@@ -17,12 +17,14 @@ import os
 import stat
 import tarfile
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from ..files import current_umask
 from ..runtime.kb.package import (
+    PACKAGE_MAGIC,
     PackageError,
     PackageHeader,
     PackageSignature,
@@ -239,7 +241,8 @@ def pack_bundle(
     payload = archive_bytes(members, compression)
     blob = seal(payload, members[0][1], manifest, seed, compression)
     public = bytes(SigningKey(seed).verify_key)
-    _check_out_file(out)
+    protected = (Path(signing_key_path), bundle_dir)
+    _check_out_file(out, protected=protected)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
@@ -256,7 +259,7 @@ def pack_bundle(
             verified = verify_package(tmp, [public])
         except PackageError as exc:  # pragma: no cover - would be a packer bug
             raise PackError(f"the package just written does not verify: {exc}") from None
-        _check_out_file(out)
+        _check_out_file(out, protected=protected)
         os.replace(tmp, out)
     except OSError as exc:
         raise PackError(
@@ -268,8 +271,18 @@ def pack_bundle(
     return PackResult(out, verified.statement, verified.key_id, len(blob), notes)
 
 
-def _check_out_file(out: Path) -> None:
-    """``-o`` names a file to create or replace: never a folder, a FIFO or a device."""
+def _check_out_file(out: Path, *, protected: Sequence[Path] = ()) -> None:
+    """``-o`` names a file to create, or a CRAFT-E package to replace: never a folder, a FIFO or
+    a device, never a file of another kind (a signing key, a user's document: replacing it would
+    lose it for good), and never one of ``protected`` (the key and the bundle being packed)."""
+    resolved = out.resolve()
+    for path in protected:
+        inside = path.resolve()
+        if resolved == inside or inside in resolved.parents:
+            raise PackError(
+                f"{out}: is {'inside ' if resolved != inside else ''}{path}, which this pack reads; "
+                "write the package somewhere else, e.g. kb.craft (nothing was written)"
+            )
     if out.is_symlink() or not out.exists():
         return
     if out.is_dir():
@@ -279,4 +292,11 @@ def _check_out_file(out: Path) -> None:
         )
     if not out.is_file():
         raise PackError(f"{out}: exists and is not a regular file (nothing was written)")
+    with out.open("rb") as handle:
+        head = handle.read(len(PACKAGE_MAGIC))
+    if head != PACKAGE_MAGIC:
+        raise PackError(
+            f"{out}: exists and is not a CRAFT-E package, so it is not replaced; give a new path "
+            "or remove the file yourself (nothing was written)"
+        )
 

@@ -52,7 +52,8 @@ def record_fixture(
     verbs: str = "verbs.txt",
     objects: str = "objects.txt",
 ) -> None:
-    """Store the answers of ``tests/fixtures/kb_small/<answers>`` as records of their prompts."""
+    """Store the answers of ``tests/fixtures/kb_small/<answers>`` as records of their prompts
+    (``replace``: a fixture may revise an answer in its own cloned cache, to build a changed KB)."""
     from craft_e.compiler.curate import record_answers
     from craft_e.compiler.vocab import read_vocabulary
 
@@ -64,6 +65,7 @@ def record_fixture(
         read_vocabulary(KB_SMALL / objects, kind="objects").names,
         note=NOTE,
         version="v1",
+        replace=True,
     )
     assert not result.skipped, result.skipped
 

@@ -136,6 +136,36 @@ def test_a_build_that_cannot_replay_deletes_nothing(
     assert llm_keys(cache) == before
 
 
+
+def test_a_mistyped_bundles_path_deletes_nothing(
+    kb_a: FixtureKB, clone_cache: Callable[[Path], Path], tmp_path: Path
+) -> None:
+    """A --bundles path that does not exist is an error, not a bundle with no records to keep."""
+    cache = clone_cache(tmp_path / "cache")
+    before = llm_keys(cache)
+    result = craftc("cache", "clean", "--cache", cache, "--bundles", kb_a.bundle,
+                    "--bundles", tmp_path / "kb-typo", "--yes")
+    assert result.exit_code == 2
+    assert "kb-typo: no such bundle folder" in result.output and "nothing deleted" in result.output
+    assert llm_keys(cache) == before
+
+
+def test_perception_records_a_bundle_ships_are_kept(kb_a: FixtureKB, tmp_path: Path) -> None:
+    """The size and colour records named in object_sizes.json / object_colours.json are referenced:
+    a rebuild looks them up, and without them it would ship fewer sizes, silently."""
+    bundle = tmp_path / "kb"
+    bundle.mkdir()
+    (bundle / "graph.json").write_bytes((kb_a.bundle / "graph.json").read_bytes())
+    size_key, colour_key = "a" * 64, "b" * 64
+    (bundle / "object_sizes.json").write_text(json.dumps(
+        {"objects": {"knife": {"dimensions_cm": [20, 2, 1], "record": size_key}}}))
+    (bundle / "object_colours.json").write_text(json.dumps(
+        {"objects": {"knife": {"colours": [], "record": colour_key}, "odd": "not an entry"}}))
+    keys, graphs = bundle_references([bundle])
+    plain, _ = bundle_references([kb_a.bundle])
+    assert graphs == [bundle / "graph.json"]
+    assert keys == plain | {size_key, colour_key}
+
 def test_stats_per_provider_model_and_prompt_version(kb_a: FixtureKB) -> None:
     stats = craftc("cache", "stats", "--cache", kb_a.cache)
     assert stats.exit_code == 0

@@ -145,6 +145,40 @@ def test_curate_then_build_then_validate(kb_a: FixtureKB, tmp_path: Path) -> Non
     assert craftc("validate", out).exit_code == 0
 
 
+
+def test_curate_never_rewrites_and_stores_all_or_nothing(tmp_path: Path) -> None:
+    """A revised answer to a recorded prompt is refused (stored answers are never rewritten), a
+    bad line stores none of the file, two answers to one prompt are refused, and a verb outside
+    the verbs file is skipped."""
+    cache = tmp_path / "cache"
+    args: list[str | Path] = ["--prompt", "verb_properties", "--verbs", KB_SMALL / "verbs.txt",
+                              "--cache", cache, "--prompts", "v1"]
+    lines = (KB_SMALL / "verb_properties.jsonl").read_text(encoding="utf-8").splitlines()
+    scoop = next(line for line in lines if '"scoop"' in line)
+    revised = (KB_SMALL / "scoop_v2.verb_properties.jsonl").read_text(encoding="utf-8").splitlines()[-1]
+    first = tmp_path / "first.jsonl"
+    first.write_text(scoop + "\n", encoding="utf-8")
+    assert craftc("curate", "record", "--answers", first, *args).exit_code == 0
+    stored = {p.name: p.read_bytes() for p in (cache / LLM_SOURCE).iterdir()}
+
+    def record(*rows: str) -> Result:
+        answers = tmp_path / "answers.jsonl"
+        answers.write_text("".join(r + "\n" for r in rows), encoding="utf-8")
+        return craftc("curate", "record", "--answers", answers, *args)
+
+    cut = next(line for line in lines if '"cut"' in line)
+    for rows, message in (((cut, revised), ":2: the prompt (verb_properties@v1 subject='scoop') already has a "
+                                           "different stored answer"),
+                          ((cut, cut), ":2: answers the same prompt as"),
+                          ((cut, '{"verb": "cut", "properties": []}'), ":2: properties")):
+        result = record(*rows)
+        assert result.exit_code == 2 and message in flat(result.output), result.output
+        assert {p.name: p.read_bytes() for p in (cache / LLM_SOURCE).iterdir()} == stored  # nothing stored
+    unknown = cut.replace('"cut"', '"whittle"')
+    result = record(scoop, unknown)
+    assert result.exit_code == 0 and "'whittle' is not in the verbs file" in flat(result.output)
+    assert "stored 0 records, 1 unchanged, 1 skipped" in result.stdout
+
 def test_curate_bad_answer_names_file_and_line(tmp_path: Path) -> None:
     answers = tmp_path / "answers.jsonl"
     answers.write_text('// fixture\n{"verb": "cut", "properties": []}\n', encoding="utf-8")

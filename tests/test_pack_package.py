@@ -278,6 +278,30 @@ def test_pack_refuses_a_damaged_bundle(tmp_path: Path, keys: tuple[Path, Path]) 
     assert not (tmp_path / "kb.craft").exists()
 
 
+
+def test_pack_never_replaces_what_it_reads_or_a_file_of_another_kind(
+    tmp_path: Path, keys: tuple[Path, Path]
+) -> None:
+    """``-o`` replaces an older package only: not the signing key (lost for good), not a file of
+    the bundle being packed, not a user's document."""
+    bundle = make_bundle(tmp_path / "kb")
+    key = tmp_path / "craft-signing.key"
+    key.write_bytes(keys[0].read_bytes())
+    document = tmp_path / "notes.txt"
+    document.write_text("precious\n")
+    graph = (bundle / "graph.json").read_bytes()
+    for out, why in ((key, "which this pack reads"), (bundle / "graph.json", "inside"),
+                     (document, "not a CRAFT-E package")):
+        with pytest.raises(PackError, match=why):
+            pack_bundle(bundle, key, out)
+    assert key.read_bytes() == keys[0].read_bytes()
+    assert document.read_text() == "precious\n"
+    assert (bundle / "graph.json").read_bytes() == graph
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["craft-signing.key", "kb", "notes.txt"]
+    first = pack_bundle(bundle, key, tmp_path / "kb.craft").out
+    again = pack_bundle(bundle, key, first)  # an older package is replaced
+    assert again.out == first and verify_package(first, [keys[1]])
+
 # --------------------------------------------------------------------------- damaged files
 
 
