@@ -116,3 +116,19 @@ def test_cli(tmp_path: Path, runtime_kbs: RuntimeKBs) -> None:
     assert bad.exit_code == 2 and "specificity-veto" in bad.output
     bad = CliRunner().invoke(app, ["eval", "kb", "--kb", str(runtime_kbs.kb), "--labels", "nope.txt"])
     assert bad.exit_code == 2 and "zhu, sim-dev" in bad.output
+
+
+@pytest.mark.parametrize("command", [
+    ["eval", "kb"],
+    ["eval", "sim", "--labels", "unused.csv", "--max-pairs", "1"],
+    ["eval", "static", "--max-pairs", "1"],
+])
+def test_a_named_bundle_that_does_not_load_is_an_error_not_a_skip(tmp_path: Path, command: list[str]) -> None:
+    """``--kb`` the user named, missing or tampered: exit 2 before any work, no results file
+    (a default bundle that is missing is skipped with the reason instead)."""
+    missing = tmp_path / "nope"
+    out = tmp_path / "out.json"
+    result = CliRunner().invoke(app, [*command, "--kb", str(missing), "--json", str(out)])
+    assert result.exit_code == 2, result.output
+    assert f"--kb {missing}" in result.output.replace("\n", "") and "not a bundle folder" in result.output
+    assert not out.exists()

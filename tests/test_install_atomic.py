@@ -158,6 +158,34 @@ def test_refused_package_leaves_the_install_untouched(
     assert tree(into) == before
 
 
+
+def test_install_touches_only_what_it_made(
+    tmp_path: Path, packages: list[Path], keys: tuple[Path, Path]
+) -> None:
+    """A person's folders and files under ``versions/`` survive installs and pruning (only version
+    folders with a bundle and install's own staging names are removed), and a refused package
+    writes nothing, not even the ``--into`` folder."""
+    into = tmp_path / "kb"
+    mine = [into / "versions" / "v2023" / "a.txt", into / "versions" / ".git" / "HEAD",
+            into / "versions" / ".keep", into / "versions" / "my-notes" / "notes.txt"]
+    for path in mine:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("data\n")
+    staging = into / "versions" / f".{'x-1.0.0-' + '0' * 12}.ab12cd34.check"
+    staging.mkdir()
+    for package in (*packages, packages[0]):  # three installs, with pruning
+        install(package, into, [keys[1]], allow_downgrade=True)
+    assert all(path.read_text() == "data\n" for path in mine)
+    assert not staging.exists()  # a crashed run's leftover, by install's own naming
+    tampered = tmp_path / "tampered.craft"
+    data = bytearray(packages[0].read_bytes())
+    data[-10] ^= 0xFF
+    tampered.write_bytes(bytes(data))
+    fresh = tmp_path / "new" / "deeper"
+    with pytest.raises(PackageError, match="payload does not match"):
+        install(tampered, fresh, [keys[1]])
+    assert not (tmp_path / "new").exists()
+
 def test_damaged_version_is_repaired_by_reinstall(
     tmp_path: Path, packages: list[Path], keys: tuple[Path, Path]
 ) -> None:

@@ -222,6 +222,7 @@ def test_cli_robustness_imagenet(runtime_kbs: RuntimeKBs, tmp_path: Path) -> Non
     labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"], "play": ["violin", "flute", "drum"]}))
     classes = tmp_path / "classes.txt"
     classes.write_text("\n".join(runtime_kbs.objects))
+    (tmp_path / "no-baselines").mkdir()  # an empty folder of bundles: the baselines are skipped
     args = ["eval", "robustness", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
             "--kb-dir", str(tmp_path / "no-baselines"), "--classes", str(classes), "--episodes", "5",
             "--levels", "blur=4", "--no-cache", "--threads", "1"]

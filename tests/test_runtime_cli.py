@@ -48,12 +48,33 @@ def test_ground_with_rois_file_and_grasp_scores(runtime_kbs: RuntimeKBs, tmp_pat
     (["--verb", "cut"], "either as --box"),
     (["--verb", "cut", "--box", "1,2,3"], "expected x,y,w,h"),
     (["--verb", "cutt", "--box", "0,0,50,50"], "close matches: cut"),
+    (["--verb", "  ", "--box", "0,0,50,50", "--open-vocab"], "--verb is blank"),
+    (["--verb", "cut", "--box", "0,0,50,50", "--alpha", "nan"], "--alpha nan"),
+    (["--verb", "cut", "--box", "0,0,50,50", "--gamma", "-1"], "--gamma -1.0"),
 ])
 def test_ground_usage_errors(runtime_kbs: RuntimeKBs, args: list[str], message: str) -> None:
     result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--image", str(shared_image("cup")), *args])
     assert result.exit_code == 2
     assert message in " ".join(result.output.split())
 
+
+
+@pytest.mark.parametrize(("roi", "message"), [
+    ({"box": [0, 0, 50, 50], "grasp_scores": [float("nan")]}, "finite numbers"),
+    ({"box": [0, 0, 50, 50], "grasp_scores": [5.0]}, "must lie in [0, 1]"),
+    ({"box": [0, 0, float("nan"), 50]}, "finite numbers"),
+    ({"box": [True, 0, 50, 50]}, "finite numbers"),
+    ({"box": [0, 0, 0, 50]}, "width and height must be > 0"),
+])
+def test_ground_rois_file_rejects_what_the_server_rejects(
+    runtime_kbs: RuntimeKBs, tmp_path: Path, roi: dict[str, object], message: str
+) -> None:
+    rois = tmp_path / "rois.json"
+    rois.write_text(json.dumps([roi]))  # json writes NaN, as a hand-edited file might hold it
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--verb", "cut", "--image",
+                                 str(shared_image("cup")), "--rois", str(rois)])
+    assert result.exit_code == 2, result.output
+    assert f"{rois}: ROI 0" in "".join(result.output.split("\n")) and message in " ".join(result.output.split())
 
 def test_ground_refuses_bundle_of_other_encoder(runtime_kbs: RuntimeKBs) -> None:
     result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.other_encoder), "--verb", "cut",
@@ -66,6 +87,7 @@ def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
     out, md = tmp_path / "r.json", tmp_path / "r.md"
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"], "eat": ["banana", "orange"]}))
+    (tmp_path / "none").mkdir()  # an empty folder of bundles (a missing one is an error)
     result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
                                  "--kb-dir", str(tmp_path / "none"), "--episodes", "5", "--json", str(out),
                                  "--markdown", str(md), "--no-cache", "--threads", "1",

@@ -169,6 +169,7 @@ def test_wrong_embedding_dimension_names_the_expected_dim(client: TestClient, se
     ({"verb": "cut", "rois": [{"box_xywh": [0, 0, 5, 5]}], "options": {"energy_form": "product"}},
      ["body", "options", "energy_form"], "literal_error"),
     ({"verb": "x" * 101, "rois": [{"box_xywh": [0, 0, 5, 5]}]}, ["body", "verb"], "string_too_long"),
+    ({"verb": "  ", "rois": [{"box_xywh": [0, 0, 5, 5]}]}, ["body", "verb"], "value_error"),
 ])
 def test_schema_errors_are_422_with_location(client: TestClient, body: dict[str, Any], loc: list[Any], kind: str) -> None:
     r = client.post("/ground", json=body)

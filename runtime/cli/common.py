@@ -29,6 +29,21 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     raise typer.Exit(code)
 
 
+def check_named_bundles(kbs: list[Path] | Path | None, kb_dir: Path | None = None) -> None:
+    """Exit 2 before any work when a bundle the user named (``--kb``) does not load and verify,
+    or a ``--kb-dir`` is not a folder. Bundles the defaults name may be missing (that method is
+    skipped with the reason); one the user asked for must not turn into a skip and exit 0."""
+    from ..kb.bundle import BundleError, load_bundle
+
+    if kb_dir is not None and not kb_dir.is_dir():
+        fail(f"--kb-dir {kb_dir}: no such folder of bundles")
+    for path in [kbs] if isinstance(kbs, Path) else kbs or []:
+        try:
+            load_bundle(path, check_encoder=False)
+        except BundleError as exc:
+            fail(f"--kb {path}: {exc}")
+
+
 def note(message: str) -> None:
     """A plain line on stderr ("wrote FILE"), never read as markup."""
     err.print(message, highlight=False, markup=False)

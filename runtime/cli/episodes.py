@@ -87,7 +87,9 @@ def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | Non
     """``--methods``/``--kb``/``--kb-dir`` as method specs, or exit 2 naming the bad one."""
     from ...paths import KB_DIR
     from ..evaluation.methods import select_methods
+    from .common import check_named_bundles
 
+    check_named_bundles(kb, kb_dir)
     try:
         return select_methods(split_names(methods), kb, kb_dir or KB_DIR)
     except ValueError as exc:

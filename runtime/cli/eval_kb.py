@@ -30,8 +30,9 @@ def eval_kb(
     from ..evaluation.common import emit_report, read_name_list
     from ..evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
     from ..grounding.energies import ENERGY_FORMS, check_energy_form
-    from .common import err, fail
+    from .common import check_named_bundles, err, fail
 
+    check_named_bundles(kb)
     try:
         forms = [check_energy_form(f) for f in energy_form] if energy_form else list(ENERGY_FORMS)
     except ValueError as exc:

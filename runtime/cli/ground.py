@@ -8,6 +8,7 @@ Thin: options are resolved into :class:`GroundingSettings`, the image + boxes be
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -51,15 +52,23 @@ def read_rois_file(path: Path) -> list[BoxSpec]:
     if not isinstance(items, list) or not items:
         raise ValueError(f'{path}: expected a non-empty list of ROIs or {{"rois": [...]}}')
     rois: list[BoxSpec] = []
+
+    def number(v: object) -> bool:  # JSON true/false are not numbers; NaN and inf are not sizes
+        return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
     for i, item in enumerate(items):
         if not isinstance(item, dict) or "box" not in item:
             raise ValueError(f"{path}: ROI {i}: expected an object with a 'box' [x, y, w, h]")
         box = item["box"]
-        if not (isinstance(box, list) and len(box) == 4 and all(isinstance(v, int | float) for v in box)):
-            raise ValueError(f"{path}: ROI {i}: 'box' must be [x, y, w, h] numbers")
+        if not (isinstance(box, list) and len(box) == 4 and all(number(v) for v in box)):
+            raise ValueError(f"{path}: ROI {i}: 'box' must be [x, y, w, h] finite numbers")
+        if box[2] <= 0 or box[3] <= 0:
+            raise ValueError(f"{path}: ROI {i}: 'box' {box}: width and height must be > 0 (pixels)")
         scores = item.get("grasp_scores")
-        if scores is not None and not (isinstance(scores, list) and all(isinstance(s, int | float) for s in scores)):
-            raise ValueError(f"{path}: ROI {i}: 'grasp_scores' must be a list of numbers")
+        if scores is not None and not (isinstance(scores, list) and all(number(s) for s in scores)):
+            raise ValueError(f"{path}: ROI {i}: 'grasp_scores' must be a list of finite numbers")
+        if scores is not None and not all(0.0 <= s <= 1.0 for s in scores):
+            raise ValueError(f"{path}: ROI {i}: 'grasp_scores' must lie in [0, 1] (qualities, not logits)")
         label = item.get("label")
         rois.append(BoxSpec((float(box[0]), float(box[1]), float(box[2]), float(box[3])),
                             None if scores is None else [float(s) for s in scores],
@@ -103,6 +112,8 @@ def ground(
 
     if len(verb) > MAX_NAME_CHARS:  # checked first: a huge --verb is never processed or echoed
         fail(f"--verb {shown(verb)} is longer than {MAX_NAME_CHARS} characters")
+    if not verb.strip():
+        fail("--verb is blank; name the action, e.g. --verb cut")
     if (box is None) == (rois is None):
         fail("give the ROIs either as --box x,y,w,h (repeatable) or as --rois FILE")
     vocabulary = read_names(vocab, "vocabulary") if vocab is not None else None

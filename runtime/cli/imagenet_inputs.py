@@ -39,7 +39,9 @@ def protocol_inputs(
     from ...paths import KB_DIR
     from ..encoders.conse import ENCODER_CACHE_DIR
     from ..evaluation.methods import default_methods
+    from .common import check_named_bundles
 
+    check_named_bundles(kb, kb_dir)
     settings = grounding_settings(temperature=temperature, aff_mode=aff_mode, energy_form=energy_form)
     pool = read_names(classes, "classes file") if classes is not None else None
     return ProtocolInputs(default_methods(kb, kb_dir or KB_DIR), pool,

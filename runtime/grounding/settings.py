@@ -35,9 +35,11 @@ class GroundingSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    alpha: float = 1.0
-    beta: float = 1.0
-    gamma: float = 1.0
+    # weights of a sum of energies: finite and not negative (a negative weight rewards the energy
+    # it should penalise; NaN would rank every ROI as NaN)
+    alpha: float = Field(1.0, ge=0.0, allow_inf_nan=False)
+    beta: float = Field(1.0, ge=0.0, allow_inf_nan=False)
+    gamma: float = Field(1.0, ge=0.0, allow_inf_nan=False)
     temperature: float = Field(DEFAULT_TEMPERATURE, gt=0)
     aff_mode: AffMode = "expected"
     energy_form: EnergyForm | None = None

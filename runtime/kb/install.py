@@ -59,6 +59,11 @@ PREVIOUS = "previous"
 LOCK = ".lock"
 ROLLBACK_JOURNAL = ".rollback"
 _VERSION_NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*-\d+\.\d+\.\d+-[0-9a-f]{12}$")
+_VERSION = r"[a-z0-9][a-z0-9._-]*-\d+\.\d+\.\d+-[0-9a-f]{12}"
+#: the hidden names install itself gives to work in ``versions/``: unpack staging (mkdtemp's
+#: random part), a re-read check, a damaged copy set aside; and its temporary links in ``into``
+_STAGING_NAME = re.compile(rf"^\.{_VERSION}\.(?:[A-Za-z0-9_]+\.unpack|[0-9a-f]{{8}}\.(?:check|broken))$")
+_TEMP_LINK_NAME = re.compile(r"^\.[a-z.]+\.[0-9a-f]{12}\.tmp$")
 
 
 class InstallError(BundleError):
@@ -164,17 +169,19 @@ def _verified_folder(folder: Path) -> Manifest | None:
 
 
 def _sweep(into: Path) -> None:
-    """Remove leftovers of crashed runs: hidden staging folders and temp links."""
+    """Remove leftovers of crashed runs: the hidden staging folders and temp links that install
+    and rollback name (``_STAGING_NAME``, ``_TEMP_LINK_NAME``), nothing else: ``versions/`` may
+    hold what a person put there, and that is theirs."""
     versions = into / VERSIONS
     if versions.is_dir():
         for entry in versions.iterdir():
-            if entry.name.startswith("."):
+            if _STAGING_NAME.match(entry.name):
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.rmtree(entry, ignore_errors=True)
                 else:
                     entry.unlink(missing_ok=True)
     for entry in into.iterdir():
-        if entry.name.startswith(".") and entry.name.endswith(".tmp") and entry.is_symlink():
+        if _TEMP_LINK_NAME.match(entry.name) and entry.is_symlink():
             entry.unlink(missing_ok=True)
 
 
@@ -200,11 +207,13 @@ def _semver(text: str) -> tuple[int, ...]:
 
 
 def _prune(into: Path, keep: set[str]) -> list[str]:
+    """Remove installed versions other than ``keep``: folders with a version's name that hold a
+    bundle manifest (what install made), never another folder or file of ``versions/``."""
     removed: list[str] = []
     for entry in sorted((into / VERSIONS).iterdir()):
-        if entry.name.startswith(".") or entry.name in keep:
+        if entry.name in keep or not _VERSION_NAME.match(entry.name):
             continue
-        if entry.is_dir() and not entry.is_symlink():
+        if entry.is_dir() and not entry.is_symlink() and (entry / "manifest.json").is_file():
             shutil.rmtree(entry, ignore_errors=True)
             removed.append(entry.name)
     return removed
@@ -229,12 +238,14 @@ def install(
     unless ``allow_downgrade``.
     """
     package, into = Path(package), Path(into)
+    # before anything is written (not even ``into`` or its lock): a refused package leaves the
+    # disk as it was; the unpack below checks the signature again on what it extracts
+    verified = verify_package(package, trusted_keys, limits=limits)
     with _locked(into):
         versions = into / VERSIONS
         versions.mkdir(exist_ok=True)
         _sweep(into)
         _finish_rollback(into)
-        verified = verify_package(package, trusted_keys, limits=limits)  # before touching anything
         vid = version_id(verified.manifest)
         target = versions / vid
         old = _link_target(into, CURRENT)
@@ -297,7 +308,7 @@ def rollback(into: Path | str) -> InstallResult:
         if prev is None:
             raise InstallError(
                 f"{into}: nothing to roll back to (no previous version); install an older "
-                "package instead"
+                "package instead (craft install --allow-downgrade if it has a lower kb_version)"
             )
         if prev == cur:
             raise InstallError(

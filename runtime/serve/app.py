@@ -138,6 +138,12 @@ def _check_embedding(values: list[float] | None) -> list[float] | None:
     return values
 
 
+def _check_verb(verb: str) -> str:
+    if not verb.strip():
+        raise ValueError("verb is blank; name the action, e.g. cut")
+    return verb
+
+
 def _check_scores(scores: list[float]) -> list[float]:
     bad = [s for s in scores if not 0.0 <= s <= 1.0]
     if bad:
@@ -218,6 +224,8 @@ class GroundRequest(BaseModel):
             "lacks are inferred from similar KB objects, or flagged as unknown (E_aff = 0)."))
     options: GroundOptions | None = None
 
+    _verb = field_validator("verb")(_check_verb)
+
 
 class BoxIn(BaseModel):
     """A region of the posted image; its crop is embedded by the server."""
@@ -239,6 +247,8 @@ class GroundImageRequest(BaseModel):
     image_b64: str = Field(min_length=1, description="Base64 of a PNG or JPEG file (RGB).")
     boxes: list[BoxIn] = Field(min_length=1)
     options: GroundOptions | None = None
+
+    _verb = field_validator("verb")(_check_verb)
 
 
 class ServeError(ValueError):
