@@ -53,3 +53,28 @@ def test_cli_scores_shipped_bundles(tmp_path: Path) -> None:
     mean = lambda col: float(np.mean([col[v] for v in ZHU_AFFORDANCES.values()]))  # noqa: E731
     assert mean(ours) > mean(chance) + 0.2  # the curated KB ranks far above chance
     assert ours["write with"] > 0.9
+
+
+def _matrix(tmp_path: Path, rows: list[str]) -> Path:
+    path = tmp_path / "zhu.csv"
+    path.write_text("".join(r + "\n" for r in rows), encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(("rows", "message"), [
+    ([], "empty; expected a header row"),
+    (["synset,Grasp"], ":1: the header lacks the column(s)"),
+    (["HEADER", "axe.n.01,1"], ":2: 2 cells, the header has"),
+    (["HEADER", "ROW:x"], ":2: affordance cells must be 0 or 1"),
+    (["HEADER", "ROW:0", "ROW:1"], ":3: object 'axe' again (first on line 2)"),
+    (["HEADER"], "no object rows after the header"),
+])
+def test_a_malformed_matrix_is_named_with_its_line(tmp_path: Path, rows: list[str], message: str) -> None:
+    header = "synset," + ",".join(ZHU_AFFORDANCES)
+    cells = len(ZHU_AFFORDANCES)
+    filled = [header if r == "HEADER" else
+              "axe.n.01," + ",".join([r.split(":")[1]] * cells) if r.startswith("ROW:") else r for r in rows]
+    path = _matrix(tmp_path, filled)
+    result = CliRunner().invoke(app, ["eval", "zhu", "--matrix", str(path)])
+    assert result.exit_code == 2, result.output
+    assert message in " ".join(result.output.split())

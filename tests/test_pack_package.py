@@ -563,3 +563,11 @@ def test_cli_keygen_and_pack(tmp_path: Path, bundle: Path) -> None:
         app, ["pack", str(broken), "--key", str(key), "-o", str(tmp_path / "b.craft")]
     )
     assert bad.exit_code == 1 and "does not verify" in bad.output
+
+
+def test_a_file_that_is_not_a_package_is_named_as_such(tmp_path: Path) -> None:
+    """A plain file given as a bundle is not "a packed bundle that needs trusted keys"."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a bundle\n")
+    with pytest.raises(BundleError, match="neither a bundle folder nor a packed bundle"):
+        load_bundle(notes)

@@ -121,3 +121,32 @@ def test_every_command_is_wired_and_answers_help() -> None:
         assert r.exit_code == 0, (path, r.output)
     assert _commands(eval_app) >= {"imagenet", "robustness/imagenet"} and _commands(sim_app) == {"demo", "collision-meshes"}
     _ = DEV_LABELS
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["eval", "kb", "--json", "{dir}"], "is a folder; give a file path inside it"),
+    (["eval", "kb", "--markdown", "{file}/t.md"], "is a file, so"),
+    (["eval", "sim", "--labels", "x.csv", "--json", "{dir}"], "is a folder"),
+    (["eval", "zhu", "--json", "{file}/z.json"], "is a file, so"),
+    (["ground", "--kb", "x", "--verb", "cut", "--image", "y", "--box", "0,0,5,5", "--plot", "{dir}/f.xyz"],
+     "unknown figure format '.xyz'"),
+    (["sim", "demo", "--verb", "cut", "--out", "{file}"], "is a file; give a folder"),
+    (["sim", "demo", "--verb", "cut", "--seed", "-5"], "--seed"),
+    (["eval", "kb", "--seed", "-1"], "--seed"),
+])
+def test_bad_outputs_and_seeds_fail_before_any_work(tmp_path: Path, args: list[str], message: str) -> None:
+    """Checked as the options are parsed: nothing runs, nothing is written (exit 2)."""
+    (tmp_path / "a-file").write_text("mine\n")
+    filled = [a.format(dir=tmp_path, file=tmp_path / "a-file") for a in args]
+    result = runner.invoke(app, filled, env={"COLUMNS": "300"})
+    assert result.exit_code == 2, result.output
+    assert message in " ".join(result.output.replace("│", " ").split())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
+def test_non_utf8_labels_name_the_file(tmp_path: Path) -> None:
+    labels = tmp_path / "labels.csv"
+    labels.write_bytes(b"cut,knife\n\xff\xfe,bad\n")
+    result = runner.invoke(app, ["eval", "sim", "--labels", str(labels), "--max-pairs", "1"])
+    assert result.exit_code == 2, result.output
+    assert f"{labels}: not UTF-8 text" in "".join(result.output.split("\n"))

@@ -67,11 +67,60 @@ def read_names(path: Path, what: str) -> list[str]:
         fail(f"{path}: cannot read the {what} ({exc})")
 
 
+def output_file_problem(path: Path) -> str | None:
+    """Why ``path`` cannot be written as a file (None when it can): checked when the option is
+    parsed, so a bad ``--json``/``--markdown``/``--plot`` fails before the work, not after it
+    with half the outputs written."""
+    if path.is_dir():
+        return f"{path} is a folder; give a file path inside it, e.g. {path / ('out' + (path.suffix or '.json'))}"
+    if path.exists() and not path.is_file():
+        return f"{path} exists and is not a regular file"
+    return _ancestor_problem(path)
+
+
+def _ancestor_problem(path: Path) -> str | None:
+    for ancestor in path.absolute().parents:
+        if ancestor.exists():
+            return None if ancestor.is_dir() else f"{ancestor} is a file, so {path} cannot be created under it"
+    return None
+
+
+def checked_output_file(value: Path | None) -> Path | None:
+    """typer callback of an output file option (see ``output_file_problem``)."""
+    problem = None if value is None else output_file_problem(value)
+    if problem is not None:
+        raise typer.BadParameter(problem)
+    return value
+
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def checked_plot_file(value: Path | None) -> Path | None:
+    """typer callback of a ``--plot`` option: a writable file with a format matplotlib writes."""
+    checked_output_file(value)
+    if value is not None and value.suffix.lower() not in PLOT_SUFFIXES:
+        raise typer.BadParameter(f"{value}: unknown figure format {value.suffix or '(none)'!r}; "
+                                 f"end the name with one of {', '.join(PLOT_SUFFIXES)}")
+    return value
+
+
+def checked_output_folder(value: Path | None) -> Path | None:
+    """typer callback of an output folder option: not an existing file, nor under one."""
+    if value is None:
+        return value
+    problem = (f"{value} is a file; give a folder" if value.exists() and not value.is_dir()
+               else _ancestor_problem(value))
+    if problem is not None:
+        raise typer.BadParameter(problem)
+    return value
+
+
 _FORMS = "sum-tanh | normalized-product | specificity | required-veto | specificity-veto"
 
 KbDirOpt = Annotated[Path | None, typer.Option(help="Folder of the baseline bundles (conceptnet/, direct-llm/).")]
-JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")]
-MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.")]
+JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)]
+MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_output_file)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
 EnergyFormOpt = Annotated[str | None, typer.Option(help=f"E_aff form: {_FORMS} (default: each bundle's).")]

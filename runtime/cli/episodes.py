@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol
 
 import typer
 
-from .common import err, fail, note
+from .common import checked_output_file, err, fail, note
 
 if TYPE_CHECKING:
     from ..evaluation.methods import MethodSpec
@@ -24,8 +24,9 @@ MethodsOpt = Annotated[list[str] | None, typer.Option(
 SceneKbOpt = Annotated[Path | None, typer.Option(help="CRAFT-E bundle (default <kb-dir>/craft-e-default).")]
 SceneKbDirOpt = Annotated[Path | None, typer.Option(
     help="Folder of the bundles (craft-e-default/, conceptnet/, direct-llm/).")]
-EpisodesJsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results (with every episode) as JSON.")]
-TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.")]
+EpisodesJsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results (with every episode) as JSON.",
+                                                      callback=checked_output_file)]
+TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)]
 MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
 SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
 JobsOpt = Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical to --jobs 1).")]

@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from .common import checked_output_file
+
 
 def eval_kb(
     kb: Annotated[list[Path] | None, typer.Option(
@@ -20,10 +22,10 @@ def eval_kb(
         help="Candidate objects of a .json labels file without an \"_objects\" list "
              "(default: the ImageNet vocabulary).")] = None,
     episodes: Annotated[int, typer.Option(min=1, help="5-candidate episodes per verb.")] = 100,
-    seed: Annotated[int, typer.Option(help="Seed of the episodes and the verb folds.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the episodes and the verb folds.")] = 0,
     folds: Annotated[int, typer.Option(min=2, help="Leave-verbs-out folds.")] = 5,
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)] = None,
 ) -> None:
     """Knowledge alone: AP, AUC and 5-candidate top-1 of E_aff per verb, chance and oracle rows,
     and leave-verbs-out choice of the E_aff form."""

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from ...paths import KB_DIR
+from .common import checked_output_file
 
 
 def eval_open_world(
@@ -16,9 +17,9 @@ def eval_open_world(
         help="zhu | sim-dev | labels .json | verb,object .csv (repeatable; default: zhu and sim-dev).")] = None,
     energy_form: Annotated[str | None, typer.Option(help="E_aff form (default: the bundle's).")] = None,
     episodes: Annotated[int, typer.Option(min=1, help="5-candidate episodes per verb.")] = 100,
-    seed: Annotated[int, typer.Option(help="Seed of the episodes.")] = 0,
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.")] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.")] = None,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the episodes.")] = 0,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)] = None,
 ) -> None:
     """Objects and verbs the KB has never seen: remove them, infer them, compare AP with the
     in-KB result; abstention rate and precision; the thresholds' dev grid."""

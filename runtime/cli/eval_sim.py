@@ -22,7 +22,7 @@ def eval_sim(
     json_out: ep.EpisodesJsonOpt = None,
     markdown: ep.TablesOpt = None,
     max_pairs: ep.MaxPairsOpt = None,
-    seed: Annotated[int, typer.Option(help="Seed of target/distractor/layout sampling.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of target/distractor/layout sampling.")] = 0,
     grasp_checks: Annotated[bool, typer.Option(help="Use only grasps whose section fits the opening and whose "
                                                     "pick is IK-feasible (best such grasp per ROI).")] = True,
     max_grasps: Annotated[int, typer.Option(min=1, help="Raw grasp candidates per ROI.")] = 5,

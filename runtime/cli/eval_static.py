@@ -25,7 +25,7 @@ def eval_static(
     json_out: ep.EpisodesJsonOpt = None,
     markdown: ep.TablesOpt = None,
     max_pairs: ep.MaxPairsOpt = None,
-    seed: Annotated[int, typer.Option(help="Seed of target/distractor/layout sampling and noise.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of target/distractor/layout sampling and noise.")] = 0,
     threads: ep.SceneThreadsOpt = 1,
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",

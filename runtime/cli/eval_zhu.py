@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from ...paths import KB_DIR, shared_dir
+from .common import checked_output_file
 
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "conceptnet", KB_DIR / "direct-llm"]
 
@@ -21,14 +22,15 @@ def eval_zhu(
         Path | None, typer.Option(help="Zhu CSV (default: shared affordance_dev).")
     ] = None,
     markdown: Annotated[
-        Path | None, typer.Option(help="Write the Markdown table here.")
+        Path | None, typer.Option(help="Write the Markdown table here.", callback=checked_output_file)
     ] = None,
     json_out: Annotated[
-        Path | None, typer.Option("--json", help="Write per-affordance AP as JSON.")
+        Path | None, typer.Option("--json", help="Write per-affordance AP as JSON.", callback=checked_output_file)
     ] = None,
 ) -> None:
     """Per affordance, AP of ranking the dev objects by E_aff — every E_aff form per bundle."""
     from ..evaluation.zhu import (
+        ZhuMatrixError,
         chance_ap,
         evaluate_bundle,
         markdown_table,
@@ -41,7 +43,10 @@ def eval_zhu(
     path = matrix or shared_dir() / "data/affordance_dev/zhu2014_affordance_matrix.csv"
     if not path.is_file():
         fail(f"{path}: Zhu matrix not found (set CRAFT_SHARED or pass --matrix)")
-    data = read_zhu_matrix(path)
+    try:
+        data = read_zhu_matrix(path)
+    except ZhuMatrixError as exc:
+        fail(str(exc))
     columns: dict[str, dict[str, float]] = {"chance": chance_ap(data)}
     for folder in kb or DEFAULT_KBS:
         try:

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 LabelsOpt = Annotated[Path, typer.Option(help='Labels JSON {"verb": ["object", ...]}.')]
 CraftKbOpt = Annotated[Path | None, typer.Option(help="CRAFT-E bundle (default artifacts/kb/craft-e-default).")]
 EpisodesOpt = Annotated[int, typer.Option(min=1, help="Episodes per verb and setting.")]
-SeedOpt = Annotated[int, typer.Option(help="Seed of the episode sampler.")]
+SeedOpt = Annotated[int, typer.Option(min=0, help="Seed of the episode sampler.")]
 
 
 @dataclass(frozen=True)

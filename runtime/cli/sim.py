@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from . import episodes as ep
+from .common import checked_output_folder
 
 if TYPE_CHECKING:
     from ..evaluation.sim_eval import EpisodeSpec, LabelPair, SimLabels
@@ -18,9 +19,10 @@ if TYPE_CHECKING:
 
 def demo(
     verb: Annotated[str, typer.Option(help="The request, e.g. cut.")],
-    seed: Annotated[int, typer.Option(help="Layout seed (also picks the target among the verb's pairs).")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Layout seed (also picks the target among the verb's pairs).")] = 0,
     kb: Annotated[Path | None, typer.Option(help="Bundle (default artifacts/kb/craft-e-default).")] = None,
-    out: Annotated[Path, typer.Option(help="Folder for the PNG, GIF and episode JSON.")] = Path("out/sim_demo"),
+    out: Annotated[Path, typer.Option(help="Folder for the PNG, GIF and episode JSON.",
+                                      callback=checked_output_folder)] = Path("out/sim_demo"),
     labels: Annotated[Path | None, typer.Option(help="Labels CSV the target and distractors come from "
                                                      "(default: artifacts/labels/sim_dev_labels.csv).")] = None,
     target: Annotated[str | None, typer.Option(help="Target asset id or plain name among the verb's pairs.")] = None,

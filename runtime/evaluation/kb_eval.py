@@ -49,7 +49,7 @@ from .common import (
     SkippedMethod,
     markdown_table,
 )
-from .zhu import average_precision, read_zhu_matrix
+from .zhu import ZhuMatrixError, average_precision, read_zhu_matrix
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -106,7 +106,10 @@ def zhu_labels(path: Path | None = None) -> LabelSet:
     src = path or shared_dir() / "data/affordance_dev/zhu2014_affordance_matrix.csv"
     if not src.is_file():
         raise FileNotFoundError(f"{src}: Zhu matrix not found (set CRAFT_SHARED)")
-    m = read_zhu_matrix(src)
+    try:
+        m = read_zhu_matrix(src)
+    except ZhuMatrixError as exc:
+        raise KBLabelsError(str(exc)) from None
     shown = "$CRAFT_SHARED/data/affordance_dev/zhu2014_affordance_matrix.csv" if path is None else str(src)
     return LabelSet("zhu", shown, list(m.objects), dict(m.labels), sha256_file(src))
 

@@ -117,6 +117,11 @@ def load_sim_labels(path: Path) -> SimLabels:
         lines = path.read_text(encoding="utf-8").splitlines()
     except FileNotFoundError:
         raise LabelsError(f"{path}: labels file not found") from None
+    except UnicodeDecodeError as exc:
+        raise LabelsError(f"{path}: not UTF-8 text (byte {exc.start}); save the labels as a UTF-8 "
+                          "CSV of 'verb,object' rows") from None
+    except OSError as exc:
+        raise LabelsError(f"{path}: cannot read the labels file ({exc.strerror or exc})") from None
     pairs: dict[tuple[str, str], LabelPair] = {}
     for lineno, row in enumerate(csv.reader(lines), start=1):
         cells = [c.strip() for c in row]

@@ -35,17 +35,49 @@ class ZhuMatrix:
     labels: dict[str, npt.NDArray[np.bool_]]  # verb -> [n_objects]
 
 
+class ZhuMatrixError(ValueError):
+    """The Zhu CSV is unreadable or malformed; the message names the file, line and fix."""
+
+
 def read_zhu_matrix(path: Path) -> ZhuMatrix:
-    """Read the CSV (first column a WordNet synset like ``axe.n.01``)."""
-    with path.open(newline="", encoding="utf-8") as handle:
-        rows = list(csv.reader(handle))
+    """Read the CSV (first column a WordNet synset like ``axe.n.01``; one 0/1 column per
+    affordance of ``ZHU_AFFORDANCES``); ``ZhuMatrixError`` names what is wrong."""
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except UnicodeDecodeError as exc:
+        raise ZhuMatrixError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ZhuMatrixError(f"{path}: cannot read the Zhu matrix ({exc.strerror or exc})") from None
+    if not rows:
+        raise ZhuMatrixError(f"{path}: empty; expected a header row with the columns "
+                             f"{', '.join(ZHU_AFFORDANCES)}")
     header = rows[0]
-    objects = [normalize_name(r[0].split(".")[0]) for r in rows[1:] if r and r[0]]
-    body = [r for r in rows[1:] if r and r[0]]
-    labels = {
-        verb: np.array([row[header.index(col)] == "1" for row in body], dtype=bool)
-        for col, verb in ZHU_AFFORDANCES.items()
-    }
+    missing = [col for col in ZHU_AFFORDANCES if col not in header]
+    if missing:
+        raise ZhuMatrixError(f"{path}:1: the header lacks the column(s) {', '.join(missing)}")
+    columns = {col: header.index(col) for col in ZHU_AFFORDANCES}
+    objects: list[str] = []
+    body: list[list[str]] = []
+    seen: dict[str, int] = {}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or not row[0]:
+            continue
+        if len(row) != len(header):
+            raise ZhuMatrixError(f"{path}:{lineno}: {len(row)} cells, the header has {len(header)}")
+        bad = [f"{col}={row[i]!r}" for col, i in columns.items() if row[i] not in ("0", "1")]
+        if bad:
+            raise ZhuMatrixError(f"{path}:{lineno}: affordance cells must be 0 or 1, got {', '.join(bad[:3])}")
+        name = normalize_name(row[0].split(".")[0])
+        if name in seen:
+            raise ZhuMatrixError(f"{path}:{lineno}: object {name!r} again (first on line {seen[name]})")
+        seen[name] = lineno
+        objects.append(name)
+        body.append(row)
+    if not body:
+        raise ZhuMatrixError(f"{path}: no object rows after the header")
+    labels = {verb: np.array([row[columns[col]] == "1" for row in body], dtype=bool)
+              for col, verb in ZHU_AFFORDANCES.items()}
     return ZhuMatrix(objects, labels)
 
 

@@ -224,8 +224,16 @@ def _load_packed(
     The bundle is read fully into memory by ``load_bundle``, so the temporary folder can go;
     ``Bundle.path`` names the package so messages and logs point at what the user passed.
     """
-    from .package import PackageError, unpacked
+    from .package import PACKAGE_MAGIC, PackageError, unpacked
 
+    try:
+        with path.open("rb") as handle:  # a regular file (load_bundle checked): never blocks
+            head = handle.read(len(PACKAGE_MAGIC))
+    except OSError as exc:
+        raise BundleError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if head != PACKAGE_MAGIC:
+        raise BundleError(f"{path}: is a file, neither a bundle folder nor a packed bundle (.craft); "
+                          "give the bundle's folder (the one holding manifest.json) or a .craft file")
     if trusted_keys is None:
         raise PackageError(f"{path}: is a packed bundle, and no trusted keys were given; pass "
                            "trusted_keys=[<craft-signing.pub>] (or --trusted-key) to verify its signer")
