@@ -71,6 +71,20 @@ CacheOpt = Annotated[
 ]
 
 
+def _existing_cache(cache: Path) -> Path:
+    """typer callback of the cache commands' --cache: a cache that does not exist is a typo, not
+    an empty cache (``cache verify`` on it would pass a CI gate having checked nothing)."""
+    if not cache.is_dir():
+        raise typer.BadParameter(f"{cache}: no such record cache folder; check the path (or CRAFT_CACHE)")
+    return cache
+
+
+ExistingCacheOpt = Annotated[
+    Path, typer.Option(help="Record cache root (artifacts/cache); must exist.", envvar="CRAFT_CACHE",
+                       callback=_existing_cache)
+]
+
+
 @app.command()
 def build(
     verbs: Annotated[Path, typer.Option(help="Verbs file: one verb per line.")],
@@ -380,7 +394,7 @@ def explain(
 def review(
     bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
     sample: Annotated[
-        int, typer.Option(help="How many random verb -> property -> object paths.")
+        int, typer.Option(min=1, help="How many random verb -> property -> object paths.")
     ] = 20,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
@@ -417,7 +431,7 @@ def schema(
 
 
 @cache_app.command("verify")
-def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
+def cache_verify(cache: ExistingCacheOpt = CACHE_DIR) -> None:
     """Re-hash every record; report corrupt and orphaned files (exit 1 if any)."""
     from .cache import CacheError, RecordCache
 
@@ -452,7 +466,7 @@ def cache_verify(cache: CacheOpt = CACHE_DIR) -> None:
 
 
 @cache_app.command("index")
-def cache_index(cache: CacheOpt = CACHE_DIR) -> None:
+def cache_index(cache: ExistingCacheOpt = CACHE_DIR) -> None:
     """Add records missing from each source's SHA256SUMS (never changes an existing entry)."""
     from .cache import CacheError, RecordCache
 
@@ -477,7 +491,7 @@ def cache_index(cache: CacheOpt = CACHE_DIR) -> None:
 
 @cache_app.command("stats")
 def cache_stats(
-    cache: CacheOpt = CACHE_DIR,
+    cache: ExistingCacheOpt = CACHE_DIR,
     table: Annotated[
         bool, typer.Option(help="A table per source/provider/model/prompt version instead of JSON.")
     ] = False,
@@ -500,7 +514,7 @@ def cache_stats(
 
 @cache_app.command("clean")
 def cache_clean(
-    cache: CacheOpt = CACHE_DIR,
+    cache: ExistingCacheOpt = CACHE_DIR,
     verbs: Annotated[
         Path | None, typer.Option(help="Also keep what a replay build of these verbs reads.")
     ] = None,

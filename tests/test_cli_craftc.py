@@ -395,3 +395,12 @@ def test_diff_usage_errors(kb_a: FixtureKB, tmp_path: Path) -> None:
     assert bad_format.exit_code == 2 and "unknown format 'xml'" in bad_format.output
     missing = craftc("diff", kb_a.bundle, tmp_path / "nowhere")
     assert missing.exit_code == 2 and "not a bundle folder" in missing.output
+
+
+def test_cache_commands_refuse_a_cache_that_does_not_exist(tmp_path: Path) -> None:
+    """A mistyped --cache is an error, not an empty cache that passes ``cache verify``."""
+    for command in ("verify", "index", "stats", "clean"):
+        result = craftc("cache", command, "--cache", tmp_path / "typo")
+        assert result.exit_code == 2, (command, result.output)
+        assert "no such record cache folder" in flat(result.output)
+    assert not (tmp_path / "typo").exists()

@@ -205,7 +205,7 @@ def test_public_key_spellings(keys: tuple[Path, Path]) -> None:
         str(keys[1]),
     ):
         assert parse_public_key(spelling) == raw
-    for bad in ("nope", b"\x00" * 31, keys[0].parent / "missing.pub"):
+    for bad in ("nope", b"\x00" * 31):  # a missing .pub file: test_a_missing_trusted_key_file_is_called_missing
         with pytest.raises(PackageError, match="not an Ed25519 public key"):
             parse_public_key(bad)
 
@@ -571,3 +571,13 @@ def test_a_file_that_is_not_a_package_is_named_as_such(tmp_path: Path) -> None:
     notes.write_text("not a bundle\n")
     with pytest.raises(BundleError, match="neither a bundle folder nor a packed bundle"):
         load_bundle(notes)
+
+
+def test_a_missing_trusted_key_file_is_called_missing(tmp_path: Path) -> None:
+    from craft_e.runtime.kb.package import parse_public_key
+
+    for value in (tmp_path / "craft-signing.pub", str(tmp_path / "craft-signing.pub")):
+        with pytest.raises(PackageError, match="no such file"):
+            parse_public_key(value)
+    with pytest.raises(PackageError, match="not an Ed25519 public key"):
+        parse_public_key("garbage")

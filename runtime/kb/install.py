@@ -347,6 +347,8 @@ def installed(into: Path | str, *, verify: bool = False) -> list[InstalledVersio
     """
     into = Path(into)
     versions = into / VERSIONS
+    if into.exists() and not into.is_dir():
+        raise InstallError(f"{into}: is a file, not an install folder; check --into")
     if not versions.is_dir():
         return []
     cur, prev = _link_target(into, CURRENT), _link_target(into, PREVIOUS)

@@ -210,6 +210,11 @@ def parse_public_key(value: TrustedKey) -> bytes:
                 )
         except OSError:
             pass
+    looks_like_path = isinstance(value, os.PathLike) or (
+        isinstance(value, str) and ("/" in value or value.endswith(".pub")))
+    if looks_like_path and not Path(value).exists():  # type: ignore[arg-type]
+        raise PackageError(f"trusted key {str(value)[:200]}: no such file; pass the craft-signing.pub "
+                           "written by `craftc keygen` (or its 64 hex characters)")
     shown = repr(value)[:40]
     raise PackageError(
         f"trusted key {shown}: not an Ed25519 public key (expected 32 raw bytes, 64 hex "

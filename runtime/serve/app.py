@@ -456,7 +456,10 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> npt.NDArray[np
                              f"this server decodes at most {max_pixels} pixels (downscale it)",
                              limit_pixels=max_pixels)
             return np.asarray(img.convert("RGB"), dtype=np.uint8)  # [H, W, 3]
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
+    except UnidentifiedImageError:
+        raise _invalid(["image_b64"], "not a readable PNG/JPEG (the decoded bytes are no image)",
+                       "image_decode") from None
+    except (OSError, Image.DecompressionBombError) as exc:
         raise _invalid(["image_b64"], f"not a readable PNG/JPEG ({exc})", "image_decode") from None
 
 
