@@ -309,10 +309,25 @@ def test_ground_image_without_encoder_is_503(client: TestClient) -> None:
 def test_cli_refuses_a_missing_bundle_with_exit_2(tmp_path: Path) -> None:
     from craft_e.runtime.cli.main import app
 
-    r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path / "nope"), "--image-encoder", "none"])
+    r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path / "nope"), "--image-encoder", "none", "--port", "0"])
     assert r.exit_code == 2 and "not a bundle folder" in r.output
     r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path), "--image-encoder", "clip"])
     assert r.exit_code == 2 and "--image-encoder" in r.output
+
+
+def test_cli_names_a_busy_port_and_a_bad_host_before_loading(tmp_path: Path) -> None:
+    import socket
+
+    from craft_e.runtime.cli.main import app
+
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path / "nope"), "--port", str(port)])
+        assert r.exit_code == 2 and f"cannot listen on 127.0.0.1:{port}" in " ".join(r.output.split())
+    r = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path / "nope"), "--host", "999.1.1.1"])
+    assert r.exit_code == 2 and "--host '999.1.1.1'" in r.output
 
 
 def _free_port() -> int:

@@ -19,6 +19,27 @@ import typer
 from .common import err, fail, grounding_settings
 
 
+def listen_problem(host: str, port: int) -> str | None:
+    """Why uvicorn could not listen on ``host:port`` (None if it can), tried before the bundle
+    loads, so a busy port or a mistyped host is a one-line error naming the fix, not a server
+    log line after seconds of loading."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as exc:
+        return f"--host {host!r}: not an address or a name this machine resolves ({exc.strerror})"
+    family, kind, proto, _, address = infos[0]
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds
+        try:
+            probe.bind(address)
+        except OSError as exc:
+            return (f"cannot listen on {host}:{port} ({exc.strerror}); choose another --port "
+                    "(or --port 0 for any free one) or stop what holds it")
+    return None
+
+
 def serve_cmd(
     kb: Annotated[Path, typer.Option(help="Bundle folder (or signed .craft file with --trusted-key).")],
     host: Annotated[str, typer.Option(help="Interface to bind (no auth: keep it local or on a trusted network).")] = "127.0.0.1",
@@ -44,6 +65,9 @@ def serve_cmd(
     if image_encoder not in ("conse", "none"):
         fail(f"--image-encoder {image_encoder!r}: use conse or none")
     settings = grounding_settings(temperature=temperature, open_vocab=open_vocab)
+    problem = listen_problem(host, port)
+    if problem is not None:
+        fail(problem)
     if log_level not in ("critical", "error", "warning", "info", "debug"):
         fail(f"--log-level {log_level!r}: use critical, error, warning, info or debug")
     try:
