@@ -183,6 +183,17 @@ def _embeddings(
     return blob, cache
 
 
+#: ``progress`` stage names with this prefix announce a build phase (no count): the CLI shows each
+#: phase as a line that completes when the next begins, so a replay build, which reads its
+#: records without fetching any, still shows where it is
+PHASE = "phase:"
+
+
+def _phase(progress: Progress | None, name: str) -> None:
+    if progress is not None:
+        progress(PHASE + name, 0)
+
+
 def build(
     config: BuildConfig,
     transport: Transport | None = None,
@@ -204,6 +215,7 @@ def build(
     objects = read_vocabulary(config.objects_file, kind="objects")
     cache = RecordCache(config.cache_root)
 
+    _phase(progress, "knowledge: records and passes")
     draft = _source_pass(config, verbs, objects, cache, transport, progress, batch)
     draft.count("read_vocabulary", "verbs", len(verbs.names))
     draft.count("read_vocabulary", "objects", len(objects.names))
@@ -211,6 +223,7 @@ def build(
     _overrides_pass(config, draft)
     check_draft(draft)
 
+    _phase(progress, "graph and affordance energies")
     graph = build_graph(draft)
     properties = draft.properties()
     w_vp, w_po = weight_matrices(draft, properties)
@@ -230,10 +243,12 @@ def build(
     energy_buf = io.BytesIO()
     np.save(energy_buf, energy, allow_pickle=False)
 
+    _phase(progress, "text embeddings")
     embeddings_blob, emb_cache = _embeddings(config, draft, properties, progress)
     # issue 11: the model that infers unseen objects' properties, fitted on this KB's objects
     from safetensors.numpy import load as load_safetensors
 
+    _phase(progress, "open-world fit, sizes, colours")
     open_world = fit_open_world(load_safetensors(embeddings_blob)["object"], w_po, tau=config.tau)
     # perception knowledge: the objects' typical sizes, where a record gives one (never asked for)
     perception_source = LLMSource(cache=cache, provider=config.provider, model=config.model)
@@ -298,6 +313,7 @@ def build(
         duration_s=round(duration, 3),
         argv=sys.argv,
     )
+    _phase(progress, "writing and verifying the bundle")
     write_bundle(config.out, files, manifest, info, force=config.force)
     return BuildResult(
         config.out,

@@ -185,7 +185,7 @@ def build(
     """Compile a KB bundle from verbs (and objects), replaying recorded answers by default."""
     from pydantic import ValidationError
 
-    from .build import BuildConfig
+    from .build import PHASE, BuildConfig
     from .build import build as run_build
     from .cache import CacheError
     from .sources.llm import SourceError
@@ -254,9 +254,24 @@ def build(
         with _progress(quiet) as bar:
             tasks: dict[str, TaskID] = {}
 
+            phases: list[TaskID] = []
+            counted: dict[str, int] = {}
+
+            def finish_phase() -> None:
+                """Complete the current phase and its counted stages (their totals are now known)."""
+                if phases:
+                    bar.update(phases[-1], completed=1)
+                for stage, task_id in tasks.items():
+                    bar.update(task_id, total=counted[stage], completed=counted[stage])
+
             def tick(stage: str, n: int) -> None:
+                if stage.startswith(PHASE):  # a new build phase: the last one is done
+                    finish_phase()
+                    phases.append(bar.add_task(stage.removeprefix(PHASE), total=1))
+                    return
                 if stage not in tasks:
-                    tasks[stage] = bar.add_task(stage, total=None)
+                    tasks[stage] = bar.add_task(f"  {stage}", total=None)
+                counted[stage] = counted.get(stage, 0) + n
                 bar.advance(tasks[stage], n)
 
             batch = None
@@ -273,6 +288,7 @@ def build(
                     log=lambda text: err.print(escape(text), highlight=False),
                 )
             result = run_build(config, transport=transport, progress=tick, batch=batch)
+            finish_phase()
     except VocabError as exc:
         fail(str(exc))
     except SourceError as exc:
