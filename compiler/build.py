@@ -219,7 +219,10 @@ def build(
     draft = _source_pass(config, verbs, objects, cache, transport, progress, batch)
     draft.count("read_vocabulary", "verbs", len(verbs.names))
     draft.count("read_vocabulary", "objects", len(objects.names))
-    draft.count("read_vocabulary", "normalization notes", len(verbs.notes) + len(objects.notes))
+    # names the reader changed or dropped; not blank lines, so re-spacing a vocabulary file does
+    # not change the bundle's content hash
+    draft.count("read_vocabulary", "normalization notes",
+                sum(1 for n in (*verbs.notes, *objects.notes) if not n.endswith("blank line(s) ignored")))
     _overrides_pass(config, draft)
     check_draft(draft)
 
@@ -315,11 +318,15 @@ def build(
     )
     _phase(progress, "writing and verifying the bundle")
     write_bundle(config.out, files, manifest, info, force=config.force)
+    unused = [] if config.prompt_version != "v1" or config.mode == "conceptnet" else [
+        f"{config.verbs_file if kind == 'verb' else config.objects_file}: {n} {kind} gloss(es) not used: "
+        "the v1 prompts carry no senses (--prompts v2 asks in them)"
+        for kind, n in (("verb", len(verbs.glosses)), ("object", len(objects.glosses))) if n]
     return BuildResult(
         config.out,
         manifest,
         report,
-        verbs.notes + objects.notes,
+        verbs.notes + objects.notes + unused,
         emb_cache.hits,
         emb_cache.misses,
         duration,

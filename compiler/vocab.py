@@ -60,6 +60,11 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
         # ``name<TAB>gloss``: the gloss fixes the sense (it may contain '#'); '#' starts a
         # comment in the name column only.
         name_part, _, gloss = raw_line.partition("\t")
+        if "\t" in gloss:
+            raise VocabError(
+                f"{path}:{lineno}: more than one tab; write 'name<TAB>gloss' (one tab, the gloss "
+                "in words separated by spaces)"
+            )
         line = name_part.split("#", 1)[0].strip()
         gloss = " ".join(gloss.split())
         if gloss and not line:

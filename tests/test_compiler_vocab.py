@@ -102,3 +102,10 @@ def test_verbs_are_never_singularized_but_objects_are(tmp_path: Path) -> None:
     path.write_text("dresses\nBrushes\n", encoding="utf-8")
     assert read_vocabulary(path, kind="verbs").names == ["dresses", "brushes"]
     assert read_vocabulary(path, kind="objects").names == ["dress", "brush"]
+
+
+def test_a_second_tab_is_an_error_not_part_of_the_gloss(tmp_path: Path) -> None:
+    path = tmp_path / "verbs.txt"
+    path.write_text("cut\nlift\tto raise something\textra\n", encoding="utf-8")
+    with pytest.raises(VocabError, match=r"verbs\.txt:2: more than one tab"):
+        read_vocabulary(path, kind="verbs")
