@@ -51,6 +51,8 @@ def test_ground_with_rois_file_and_grasp_scores(runtime_kbs: RuntimeKBs, tmp_pat
     (["--verb", "  ", "--box", "0,0,50,50", "--open-vocab"], "--verb is blank"),
     (["--verb", "cut", "--box", "0,0,50,50", "--alpha", "nan"], "--alpha nan"),
     (["--verb", "cut", "--box", "0,0,50,50", "--gamma", "-1"], "--gamma -1.0"),
+    (["--verb", "cut", "--box", "0,0,50,50", "--grasp", "foo"], "--grasp 'foo': use auto or one of"),
+    (["--verb", "cut", "--box", "0,0,50,50", "--grasp", "ggcnn"], "pass --depth FILE.npy too"),
 ])
 def test_ground_usage_errors(runtime_kbs: RuntimeKBs, args: list[str], message: str) -> None:
     result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--image", str(shared_image("cup")), *args])
@@ -150,3 +152,17 @@ def test_non_utf8_labels_name_the_file(tmp_path: Path) -> None:
     result = runner.invoke(app, ["eval", "sim", "--labels", str(labels), "--max-pairs", "1"])
     assert result.exit_code == 2, result.output
     assert f"{labels}: not UTF-8 text" in "".join(result.output.split("\n"))
+
+
+def test_ground_names_a_depth_file_of_the_wrong_shape(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
+    import numpy as np
+    from PIL import Image
+
+    image = shared_image("cup")
+    w, h = Image.open(image).size
+    depth = tmp_path / "depth.npy"
+    np.save(depth, np.ones((h, w, 3), dtype=np.float32))
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--verb", "cut", "--image", str(image),
+                                 "--box", "0,0,50,50", "--depth", str(depth)])
+    assert result.exit_code == 2, result.output
+    assert "depth must be an H x W array" in " ".join(result.output.split())

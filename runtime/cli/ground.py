@@ -128,6 +128,14 @@ def ground(
         specs = [BoxSpec(parse_box(b)) for b in box] if box else read_rois_file(rois) if rois else []
     except ValueError as exc:
         fail(str(exc))
+    from ..grasp.predict import BACKENDS
+
+    if grasp != "auto" and grasp not in BACKENDS:
+        fail(f"--grasp {grasp!r}: use auto or one of {', '.join(BACKENDS)}")
+    if grasp != "auto" and depth is None:
+        fail(f"--grasp {grasp} predicts grasps from depth: pass --depth FILE.npy too")
+    if image.is_dir():
+        fail(f"{image}: is a folder; give an image file (png/jpg)")
     if not image.is_file():
         fail(f"{image}: image not found")
     try:
@@ -140,6 +148,9 @@ def ground(
             depth_map = np.load(depth, allow_pickle=False)
         except (OSError, ValueError) as exc:
             fail(f"{depth}: not a .npy depth map ({exc})")
+        if depth_map.ndim != 2 or not np.issubdtype(depth_map.dtype, np.number):
+            fail(f"{depth}: depth must be an H x W array of metres, got shape {depth_map.shape} "
+                 f"({depth_map.dtype})")
         if depth_map.shape[:2] != rgb.shape[:2]:
             fail(f"{depth}: depth is {depth_map.shape[:2]}, image is {rgb.shape[:2]}")
     entry = REGISTRY.get(image_encoder)
