@@ -132,3 +132,15 @@ def test_a_named_bundle_that_does_not_load_is_an_error_not_a_skip(tmp_path: Path
     assert result.exit_code == 2, result.output
     assert f"--kb {missing}" in result.output.replace("\n", "") and "not a bundle folder" in result.output
     assert not out.exists()
+
+
+def test_folds_are_at_most_the_labelled_verbs(tmp_path: Path, runtime_kbs: RuntimeKBs) -> None:
+    """More --folds than verbs: one verb per fold (no empty fold reported as NaN)."""
+    path = write_labels(tmp_path, runtime_kbs.objects)
+    out_json = tmp_path / "kb.json"
+    result = CliRunner().invoke(app, ["eval", "kb", "--kb", str(runtime_kbs.kb), "--labels", str(path),
+                                      "--energy-form", "sum-tanh", "--episodes", "5", "--folds", "50",
+                                      "--json", str(out_json)])
+    assert result.exit_code == 0, result.output
+    data = json.loads(out_json.read_text())
+    assert data["config"]["folds"] == 3 and "nan" not in result.output.lower()  # cut, pour, fly

@@ -427,6 +427,10 @@ def evaluate_kbs(
     names = [ls.name for ls in label_sets]
     if len(set(names)) != len(names):
         raise KBLabelsError(f"label sets must have distinct names, got {names}")
+    units = [(ls.name, v) for ls in label_sets for v in ls.positives]
+    if len(units) < 2:
+        raise KBLabelsError(f"leave-verbs-out needs at least 2 labelled verbs, the labels have {len(units)}")
+    folds = min(folds, len(units))  # every fold holds a verb (an empty fold has no mean: NaN)
     eps = {(ls.name, v): episodes(ls, v, episodes_per_verb, seed) for ls in label_sets for v in ls.positives}
     rows = _reference_rows(label_sets, eps)
     skipped: list[SkippedMethod] = []
@@ -437,7 +441,6 @@ def evaluate_kbs(
             skipped.append(SkippedMethod(str(path), f"bundle unavailable: {exc}"))
             continue
         rows += _bundle_rows(bundle, forms, label_sets, eps)
-    units = [(ls.name, v) for ls in label_sets for v in ls.positives]
     lvo = leave_verbs_out([r for r in rows if r.kb not in ("chance", "oracle")], units, forms, folds, seed)
     config = {"episodes": episodes_per_verb, "seed": seed, "folds": folds, "forms": list(forms),
               "bundles": [str(b) for b in bundles], "labels": list(label_specs), "candidates": CANDIDATES}
