@@ -295,6 +295,11 @@ def test_ground_image_embeds_crops_server_side(runtime_kbs: RuntimeKBs, conse: A
         outside = [{"box_xywh": [1000, 1000, 10, 10], "grasp_scores": [0.5]}]
         r = c.post("/ground_image", json={"verb": "cut", "image_b64": base64.b64encode(png).decode(), "boxes": outside})
         assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "boxes", 0, "box_xywh"]
+        assert not d["notes"]  # both boxes lie inside the image
+        half = [{"box_xywh": [400, 100, 100, 100], "grasp_scores": [0.5]}]
+        r = c.post("/ground_image", json={"verb": "cut", "image_b64": base64.b64encode(png).decode(), "boxes": half})
+        assert r.status_code == 200 and r.json()["notes"] == [
+            "box 0 [400.0, 100.0, 100.0, 100.0] reaches past the 448x224 image: only the part inside was embedded"]
 
 
 def test_ground_image_without_encoder_is_503(client: TestClient) -> None:

@@ -125,4 +125,4 @@ TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature 
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
 EnergyFormOpt = Annotated[str | None, typer.Option(help=f"E_aff form: {_FORMS} (default: each bundle's).")]
 ThreadsOpt = Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")]
-NoCacheOpt = Annotated[bool, typer.Option(help="Do not read or write the on-disk image-embedding cache.")]
+NoCacheOpt = Annotated[bool, typer.Option("--no-cache", help="Do not read or write the on-disk image-embedding cache.")]
