@@ -118,14 +118,19 @@ def record_answers(
     stored answer is never rewritten: an answer to a prompt that already has a different one is an
     error (a new answer needs a new prompt or prompt version), unless ``replace`` (a scratch
     cache, e.g. a test simulating a provider that answered differently: the old answer is lost);
-    two answers to one prompt in the file are an error. Answers to prompts outside the verbs /
-    objects files are skipped."""
+    two answers to one prompt in the file are an error. Skipped, and listed with the reason:
+    answers about a verb, object or property the verbs / objects files do not name, and answers
+    to prompts already recorded (not pending)."""
     result = CurationResult(0, 0, [])
     ready: list[tuple[str, Record]] = []
+    unknown: list[str] = []  # answers about a subject the verbs / objects files do not name: skipped
+    known_objects = set(objects)
+    known_properties: set[str] = set()
     pending: dict[str, PromptCall] = {}
     senses = verb_glosses or {}
     if prompt_id == "object_properties":
         properties, definitions = _stage1_properties(source, verbs, version, senses)
+        known_properties = set(properties)
         _, calls = plan_object_calls(
             source, objects, properties, version=version, glosses=glosses, definitions=definitions
         )
@@ -135,6 +140,7 @@ def record_answers(
         pending = {c.subject: c for c in calls}
     elif prompt_id == "property_objects":
         properties, definitions = _stage1_properties(source, verbs, version, senses)
+        known_properties = set(properties)
         _, calls = plan_property_calls(source, properties, definitions, objects, glosses or {})
         pending = {c.subject: c for c in calls}
     elif prompt_id in PER_OBJECT_PROMPTS:
@@ -146,7 +152,7 @@ def record_answers(
                 vp = VerbProperties.model_validate(row)
                 payload = vp.model_dump(mode="json")
                 if normalize_verb(vp.verb) not in verbs:
-                    result.skipped.append(f"{where}: {vp.verb!r} is not in the verbs file")
+                    unknown.append(f"{where}: {vp.verb!r} is not in the verbs file")
                     continue
                 call = verb_call(normalize_verb(vp.verb), version=version)
                 if len(vp.properties) != call.variables["k"]:
@@ -158,7 +164,7 @@ def record_answers(
                 payload = vp2.model_dump(mode="json")
                 verb = normalize_verb(vp2.verb)
                 if verb not in verbs:
-                    result.skipped.append(f"{where}: {vp2.verb!r} is not in the verbs file")
+                    unknown.append(f"{where}: {vp2.verb!r} is not in the verbs file")
                     continue
                 call = verb_call(verb, version=version, gloss=senses.get(verb, ""))
                 if not 3 <= len(vp2.properties) <= call.variables["k"]:
@@ -170,10 +176,11 @@ def record_answers(
                 op = ObjectProperties.model_validate(row)
                 payload = op.model_dump(mode="json")
                 obj = normalize_name(op.object)
+                if obj not in known_objects:
+                    unknown.append(f"{where}: {obj!r} is not in the objects file")
+                    continue
                 if obj not in pending:
-                    result.skipped.append(
-                        f"{where}: {obj!r} has no pending request (already recorded or not in the objects file)"
-                    )
+                    result.skipped.append(f"{where}: {obj!r} has no pending request (already recorded)")
                     continue
                 call = pending[obj]
                 named = set(call.variables["properties"])
@@ -188,11 +195,11 @@ def record_answers(
                 po = PropertyObjects.model_validate(row)
                 payload = po.model_dump(mode="json")
                 prop = normalize_property(po.property)
+                if prop not in known_properties:
+                    unknown.append(f"{where}: {prop!r} is not a property of the verbs file's stage-1 answers")
+                    continue
                 if prop not in pending:
-                    result.skipped.append(
-                        f"{where}: {prop!r} has no pending request (already recorded or not a "
-                        "property of the verbs file)"
-                    )
+                    result.skipped.append(f"{where}: {prop!r} has no pending request (already recorded)")
                     continue
                 call = pending[prop]
                 named = set(call.variables["objects"])
@@ -207,14 +214,16 @@ def record_answers(
                 verb = normalize_verb(vo.verb)
                 if version == "v1":
                     if verb not in verbs:
-                        result.skipped.append(f"{where}: {vo.verb!r} is not in the verbs file")
+                        unknown.append(f"{where}: {vo.verb!r} is not in the verbs file")
                         continue
                     call = direct_call(verb, objects, version=version, glosses=glosses)
                 else:  # v2 grows incrementally: the pending call names only uncovered objects
+                    if verb not in verbs:
+                        unknown.append(f"{where}: {vo.verb!r} is not in the verbs file")
+                        continue
                     if verb not in pending:
                         result.skipped.append(
-                            f"{where}: {verb!r} has no pending request (already recorded for "
-                            "every object, or not in the verbs file)"
+                            f"{where}: {verb!r} has no pending request (already recorded for every object)"
                         )
                         continue
                     call = pending[verb]
@@ -228,11 +237,11 @@ def record_answers(
                 answer = PER_OBJECT_PROMPTS[prompt_id].model_validate(row)
                 payload = answer.model_dump(mode="json")
                 obj = normalize_name(str(answer.object), singularize=False)
+                if obj not in known_objects and normalize_name(obj) not in known_objects:
+                    unknown.append(f"{where}: {obj!r} is not in the objects file")
+                    continue
                 if obj not in pending:
-                    result.skipped.append(
-                        f"{where}: {obj!r} has no pending {prompt_id} request (already recorded "
-                        "or not in the objects file)"
-                    )
+                    result.skipped.append(f"{where}: {obj!r} has no pending {prompt_id} request (already recorded)")
                     continue
                 call = pending[obj]
             else:
@@ -247,6 +256,8 @@ def record_answers(
                 f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}"
             ) from None
         ready.append((where, _record(source, call, payload, note)))
+    result.skipped.extend(f"{line}: not stored (pass the --verbs / --objects file that names it)"
+                          for line in unknown)
     first_line: dict[str, str] = {}
     for where, record in ready:
         if record.key in first_line:
