@@ -231,11 +231,16 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="craft-bench-"))
-    if workdir.resolve().is_relative_to(ARTIFACTS_DIR.resolve()):
-        parser.error(
-            f"--workdir {workdir} is inside {ARTIFACTS_DIR}: synthetic records never go there"
-        )
+    checkout_artifacts = Path(__file__).resolve().parents[1] / "artifacts"  # wherever it runs from
+    for artifacts in {ARTIFACTS_DIR.resolve(), checkout_artifacts}:
+        if workdir.resolve().is_relative_to(artifacts):
+            parser.error(f"--workdir {workdir} is inside {artifacts}: synthetic records never go there")
+    marker = workdir / ".craft-bench-workdir"
+    if args.workdir is not None and workdir.exists() and any(workdir.iterdir()) and not marker.exists():
+        parser.error(f"--workdir {workdir} holds files this benchmark did not write; give an empty or "
+                     "new folder (the benchmark overwrites its verbs.txt, objects.txt and cache there)")
     workdir.mkdir(parents=True, exist_ok=True)
+    marker.write_text("scratch folder of benchmarks/bench_build.py\n", encoding="utf-8")
     try:
         report = run(args.verbs, args.objects, args.properties, workdir, args.seed)
     finally:

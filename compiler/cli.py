@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 from typing import Annotated, Literal
@@ -299,6 +300,11 @@ def build(
         fail(f"{exc} (`craftc cache verify` lists every damaged file)")
     except OSError as exc:  # read-only or full --out, a concurrent build replacing --out
         where = f" {exc.filename}" if exc.filename else ""
+        failed = Path(os.fsdecode(exc.filename)).absolute() if exc.filename else None
+        if failed is not None and Path(cache).absolute() in failed.parents:
+            fail(f"cannot read{where} from the record cache ({exc.strerror or exc}): it changed while "
+                 "the build read it (a `craftc cache clean --yes` at the same time?); run the build "
+                 "again; nothing was written to --out")
         fail(
             f"cannot write the bundle --out {config.out}:{where} {exc.strerror or exc}; "
             "check that the folder is writable and has free space (a build racing another "
@@ -724,4 +730,12 @@ register_diagnose(app)
 
 def main() -> None:  # pragma: no cover - console entry
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    # SIGTERM (CI cancelling a job, `timeout`, systemd) exits through Python as Ctrl-C does, so
+    # a build stopped while writing removes its hidden staging folder (write_bundle's cleanup)
+    # instead of leaving it beside --out
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     app()
+
+
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)

@@ -1,6 +1,7 @@
 """Write the vocabularies under artifacts/vocab/ from the paper's table and the shared data.
 
-Run: python scripts/make_vocab.py   (deterministic; re-run after changing a source list)
+Run: python scripts/make_vocab.py   (deterministic; re-run after changing a source list, then
+scripts/make_glosses.py; glosses already in a file are kept for the names it still lists)
 
 Sources: the paper's "Concepts used in static and real-world evaluation" table (transcribed
 below), ../shared/data/imagenet_affordance/{verbs.txt,objects.tsv}, the simulation assets in
@@ -139,9 +140,20 @@ def unique(names: list[str]) -> list[str]:
 
 
 def write(name: str, items: list[str]) -> None:
+    """Write one vocabulary, keeping the ``name<TAB>gloss`` glosses the file already has for the
+    names it still lists: scripts/make_glosses.py adds them afterwards, so re-running this script
+    must not strip the senses the shipped builds ask in."""
     path = VOCAB_DIR / name
-    path.write_text("\n".join(items) + "\n", encoding="utf-8")
-    print(f"{path}: {len(items)}")
+    glosses: dict[str, str] = {}
+    if path.is_file():
+        for line in path.read_text(encoding="utf-8").splitlines():
+            item, tab, gloss = line.partition("\t")
+            if tab and gloss:
+                glosses[item] = gloss
+    lines = [f"{item}\t{glosses[item]}" if item in glosses else item for item in items]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    kept = sum(item in glosses for item in items)
+    print(f"{path}: {len(items)}" + (f" ({kept} glosses kept; scripts/make_glosses.py rewrites them)" if kept else ""))
 
 
 def zhu_objects() -> dict[str, str]:
