@@ -19,6 +19,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from craft_e.arguments import positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
@@ -70,7 +71,7 @@ def main() -> None:
     parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
     parser.add_argument("--hand", default=None, help="robotiq_2f85 | panda (default: the env's)")
     parser.add_argument("--grasp", default="grconvnet")
-    parser.add_argument("--max-pairs", type=int, default=None)
+    parser.add_argument("--max-pairs", type=positive_int, default=None)
     parser.add_argument("--force", type=float, default=None,
                         help="gripper effort: N per Franka finger, N·m per Robotiq driven joint "
                              "(default: the hand's)")

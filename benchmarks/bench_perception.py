@@ -49,6 +49,7 @@ import platform
 import time
 from pathlib import Path
 
+from craft_e.arguments import positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import (
     build_grounders,
@@ -96,8 +97,8 @@ def _rect_gap(a: object, b: object) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
-    parser.add_argument("--scenes", type=int, default=6)
-    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--scenes", type=positive_int, default=6)
+    parser.add_argument("--repeats", type=positive_int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()

@@ -45,6 +45,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from craft_e.arguments import positive_int
+
 PROVIDER = "bench-synthetic"
 MODEL = "synthetic-v1"
 NOTE = "synthetic benchmark data from benchmarks/bench_scale.py; not knowledge, never ship it"
@@ -574,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rdflib", action="store_true",
                         help="also time a warm build with rdflib's Turtle serializer (first size)")
     parser.add_argument("--profile", default=None, help="folder for cProfile stats of warm builds")
-    parser.add_argument("--repeats", type=int, default=300, help="ground() calls per size")
+    parser.add_argument("--repeats", type=positive_int, default=300, help="ground() calls per size")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="write the rows here")
     parser.add_argument("--plot", type=Path, default=None, help="write a PNG plot here")

@@ -25,6 +25,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from craft_e.arguments import positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.methods import build_grounders, load_methods, select_methods
 from craft_e.runtime.evaluation.sim_eval import (
@@ -63,7 +64,7 @@ class EpisodeTiming:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
-    parser.add_argument("--episodes", type=int, default=6)
+    parser.add_argument("--episodes", type=positive_int, default=6)
     parser.add_argument("--grasp", default="grconvnet")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
