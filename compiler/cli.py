@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import sys
 from pathlib import Path
 from typing import Annotated, Literal
@@ -28,6 +27,7 @@ from rich.progress import (
 
 from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR
 from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
+from ..signals import exit_through_python_on_sigterm
 from .cli_diagnose import register as register_diagnose
 from .cli_pack import register as register_pack
 from .prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
@@ -730,12 +730,5 @@ register_diagnose(app)
 
 def main() -> None:  # pragma: no cover - console entry
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    # SIGTERM (CI cancelling a job, `timeout`, systemd) exits through Python as Ctrl-C does, so
-    # a build stopped while writing removes its hidden staging folder (write_bundle's cleanup)
-    # instead of leaving it beside --out
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    exit_through_python_on_sigterm()
     app()
-
-
-def _exit_on_sigterm(signum: int, frame: object) -> None:
-    raise SystemExit(128 + signum)

@@ -13,10 +13,10 @@ Exit codes (``common``): 0 ok; 2 bad input or usage (files, boxes, unknown verb,
 from __future__ import annotations
 
 import os
-import signal
 
 import typer
 
+from ...signals import exit_through_python_on_sigterm
 from . import (
     eval_imagenet,
     eval_kb,
@@ -69,13 +69,5 @@ def main() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-    # SIGTERM (a scheduler, `timeout`, `kill`) exits like Ctrl-C does, through Python: temporary
-    # folders (the simulator's derived URDFs) and open files are cleaned up by their atexit hooks
-    # and context managers instead of being left in /tmp. `craft serve` replaces this with
-    # uvicorn's own graceful shutdown.
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    exit_through_python_on_sigterm()  # `craft serve` replaces it with uvicorn's graceful shutdown
     app(prog_name="craft")
-
-
-def _exit_on_sigterm(signum: int, frame: object) -> None:
-    raise SystemExit(128 + signum)
