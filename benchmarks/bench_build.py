@@ -29,6 +29,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from craft_e.arguments import output_file
 from craft_e.compiler.build import BuildConfig, BuildResult, build
 from craft_e.compiler.cache import RecordCache
 from craft_e.compiler.llm_knowledge import K_PROPERTIES, plan_object_calls, verb_call
@@ -220,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--objects", type=int, default=400)
     parser.add_argument("--properties", type=int, default=300, help="size of the property pool")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    parser.add_argument("--json", type=output_file, default=None, help="also write the figures here")
     parser.add_argument(
         "--workdir",
         type=Path,

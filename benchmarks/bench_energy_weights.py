@@ -26,6 +26,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from craft_e.arguments import number_list, output_file
 from craft_e.paths import KB_DIR, SIM_DEV_LABELS
 from craft_e.runtime.evaluation.methods import MethodSpec
 
@@ -82,18 +83,27 @@ def leave_one_verb_out(per_gamma: dict[float, dict[str, float]]) -> dict[str, An
                                                      / max(1, len(units) - 1) for g in gammas}}}
 
 
+def _bundle_name(name: str) -> str:
+    """--kb: a bundle folder under artifacts/kb, checked before minutes of ImageNet scoring."""
+    if not (KB_DIR / name / "manifest.json").is_file():
+        shipped = ", ".join(sorted(p.name for p in KB_DIR.iterdir() if (p / "manifest.json").is_file()))
+        raise argparse.ArgumentTypeError(f"no bundle {KB_DIR / name}; shipped: {shipped}")
+    return name
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--gammas", default="0,0.1,0.25,0.5,1")
-    parser.add_argument("--kb", action="append", default=None, help="bundle names under artifacts/kb "
+    parser.add_argument("--gammas", type=number_list, default="0,0.1,0.25,0.5,1")
+    parser.add_argument("--kb", action="append", type=_bundle_name, default=None,
+                        help="bundle names under artifacts/kb "
                         "(default: craft-e-default, direct-llm)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--no-static", action="store_true")
-    parser.add_argument("--json", type=Path, default=None)
-    parser.add_argument("--markdown", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
+    parser.add_argument("--markdown", type=output_file, default=None)
     args = parser.parse_args()
-    gammas = [float(g) for g in args.gammas.split(",")]
+    gammas: list[float] = args.gammas
     kbs = args.kb or ["craft-e-default", "direct-llm"]
     specs = [MethodSpec(_row(kb, g), f"{kb}, beta 1, gamma {g:g}", KB_DIR / kb, beta=1.0, gamma=g)
              for kb in kbs for g in gammas]

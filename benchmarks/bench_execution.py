@@ -19,7 +19,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from craft_e.arguments import positive_int
+from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
@@ -75,7 +75,7 @@ def main() -> None:
     parser.add_argument("--force", type=float, default=None,
                         help="gripper effort: N per Franka finger, N·m per Robotiq driven joint "
                              "(default: the hand's)")
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
     report = run(args.labels, args.hand, args.grasp, args.max_pairs, args.force)
     n = report["episodes"]

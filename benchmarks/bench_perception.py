@@ -49,7 +49,7 @@ import platform
 import time
 from pathlib import Path
 
-from craft_e.arguments import positive_int
+from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import (
     build_grounders,
@@ -100,7 +100,7 @@ def main() -> None:
     parser.add_argument("--scenes", type=positive_int, default=6)
     parser.add_argument("--repeats", type=positive_int, default=2)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
 
     import torch

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from safetensors.numpy import save as save_safetensors
 
-from craft_e.arguments import positive_int
+from craft_e.arguments import output_file, positive_int
 from craft_e.runtime.encoders.text import MINILM_DIM, MINILM_ID, MINILM_SHA256
 from craft_e.runtime.grounding.energies import affordance_energy_matrix
 from craft_e.runtime.grounding.grounder import ROI, Grounder
@@ -129,7 +129,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=None, help="torch threads for the image encoder")
     parser.add_argument("--repeats", type=positive_int, default=500)
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("--skip-encoder", action="store_true", help="only the KB-side figures")
     args = parser.parse_args()
     rows: list[dict[str, Any]] = []

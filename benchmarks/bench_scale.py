@@ -45,7 +45,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from craft_e.arguments import positive_int
+from craft_e.arguments import output_file, positive_int
 
 PROVIDER = "bench-synthetic"
 MODEL = "synthetic-v1"
@@ -562,14 +562,20 @@ def plot(rows: list[dict[str, Any]], out: Path) -> None:
     plt.close(fig)
 
 
-def _size(text: str) -> tuple[int, int]:
-    v, o = text.lower().split("x")
-    return int(v), int(o)
+def _sizes(text: str) -> list[tuple[int, int]]:
+    """--sizes: comma-separated VERBSxOBJECTS, each count >= 1, checked at parse time."""
+    sizes = []
+    for part in text.split(","):
+        counts = part.strip().lower().split("x")
+        if len(counts) != 2:
+            raise argparse.ArgumentTypeError(f"{part!r} is not VERBSxOBJECTS (e.g. 100x400)")
+        sizes.append((positive_int(counts[0]), positive_int(counts[1])))
+    return sizes
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("--sizes", default=DEFAULT_SIZES,
+    parser.add_argument("--sizes", type=_sizes, default=DEFAULT_SIZES,
                         help="comma-separated VERBSxOBJECTS (default %(default)s)")
     parser.add_argument("--fake-embeddings", action="store_true",
                         help="hash-seeded random unit vectors instead of MiniLM (labelled)")
@@ -578,9 +584,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", default=None, help="folder for cProfile stats of warm builds")
     parser.add_argument("--repeats", type=positive_int, default=300, help="ground() calls per size")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=Path, default=None, help="write the rows here")
-    parser.add_argument("--plot", type=Path, default=None, help="write a PNG plot here")
-    parser.add_argument("--markdown", type=Path, default=None, help="write the table here")
+    parser.add_argument("--json", type=output_file, default=None, help="write the rows here")
+    parser.add_argument("--plot", type=output_file, default=None, help="write a PNG plot here")
+    parser.add_argument("--markdown", type=output_file, default=None, help="write the table here")
     parser.add_argument("--workdir", default=None,
                         help="scratch folder (default: a new temporary folder, removed after)")
     parser.add_argument("--step", choices=sorted(STEPS), help=argparse.SUPPRESS)
@@ -592,7 +598,6 @@ def main(argv: list[str] | None = None) -> int:
         return child_main(args)
     from craft_e.paths import ARTIFACTS_DIR
 
-    args.sizes = [_size(s) for s in args.sizes.split(",")]
     root = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="craft-scale-"))
     if root.resolve().is_relative_to(ARTIFACTS_DIR.resolve()):
         parser.error(f"--workdir {root} is inside {ARTIFACTS_DIR}: synthetic records never go there")

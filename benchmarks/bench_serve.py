@@ -34,6 +34,8 @@ from typing import Any
 import httpx
 import numpy as np
 
+from craft_e.arguments import output_file
+
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_KB = REPO / "artifacts" / "kb" / "craft-e-default"
 
@@ -197,7 +199,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--bodies", type=int, default=64, help="Distinct precomputed request bodies.")
     ap.add_argument("--image-encoder", default="none", help="Server's --image-encoder (conse | none).")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--json", type=Path, default=None, dest="json_out")
+    ap.add_argument("--json", type=output_file, default=None, dest="json_out")
     args = ap.parse_args(argv)
     if args.clients < 1 or args.duration <= 0 or args.rois < 1:
         ap.error("--clients, --duration and --rois must be positive")

@@ -25,7 +25,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from craft_e.arguments import positive_int
+from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.methods import build_grounders, load_methods, select_methods
 from craft_e.runtime.evaluation.sim_eval import (
@@ -66,7 +66,7 @@ def main() -> None:
     parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
     parser.add_argument("--episodes", type=positive_int, default=6)
     parser.add_argument("--grasp", default="grconvnet")
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
 
     config = PipelineConfig(grasp=args.grasp)

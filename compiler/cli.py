@@ -248,6 +248,11 @@ def build(
                  "--kb-version": " (MAJOR.MINOR.PATCH, e.g. 1.0.0)", "--tau": " (a number in [0, 1])"}
         fail(f"bad option {option} {first.get('input')!r}: {first['msg']}{hints.get(option, '')}; "
              "nothing was built")
+    if provider == "replay" and not cache.is_dir():
+        # A replay build reads every answer from the cache: a mistyped --cache / CRAFT_CACHE would
+        # otherwise surface as "no record for ..." about the first verb, naming a record path.
+        fail(f"{cache}: no such record cache folder (from --cache or CRAFT_CACHE); a replay build "
+             "reads every answer from it (the shipped one is artifacts/cache); nothing was built")
     if out is None and (config.out / "manifest.json").is_file() and not force:
         fail(f"{config.out}: a bundle already exists at the default output (artifacts/kb/{name}); "
              "pass --out DIR for a new bundle, or --force to replace it (nothing was written)")

@@ -1,9 +1,12 @@
-"""argparse types shared by the benchmark scripts: a bad count fails at parse time, naming the
-option, not minutes later as a traceback (or as a negative slice that quietly runs everything)."""
+"""argparse types shared by the benchmark scripts: a bad count or output path fails at parse time,
+naming the option, not minutes later as a traceback (or as a negative slice that quietly runs
+everything)."""
 
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
 
 
 def positive_int(text: str) -> int:
@@ -15,3 +18,28 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"{value} must be at least 1")
     return value
+
+
+def output_file(text: str) -> Path:
+    """A file a script writes after minutes of work (--json, --markdown): its folder must exist
+    and the path must not be a folder, checked before the work rather than as a traceback after."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder; give a file path")
+    if not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{path.parent} does not exist; create it or give another path")
+    return path
+
+
+def number_list(text: str) -> list[float]:
+    """Comma-separated finite numbers >= 0 (weights such as --gammas)."""
+    values = []
+    for part in text.split(","):
+        try:
+            value = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{part!r} is not a number") from None
+        if not math.isfinite(value) or value < 0:
+            raise argparse.ArgumentTypeError(f"{part!r} must be a finite number >= 0")
+        values.append(value)
+    return values

@@ -182,6 +182,13 @@ def test_unwritable_out_is_exit_2(
     assert not (tmp_path / "out").exists()
 
 
+def test_a_replay_build_from_a_missing_cache_names_the_cache(tmp_path: Path) -> None:
+    result = craftc(*replay_args(tmp_path / "no-such-cache", tmp_path / "out"))
+    assert result.exit_code == 2, (result.output, result.exception)
+    assert "no such record cache folder (from --cache or CRAFT_CACHE)" in flat(result.output)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "no-such-cache").exists()
+
+
 def test_out_at_a_mount_point_is_exit_2(kb_a: FixtureKB) -> None:
     result = craftc(*replay_args(kb_a.cache, Path("/proc")))
     assert result.exit_code == 2, result.output
