@@ -41,3 +41,12 @@ def shared_dir() -> Path:
     """The shared reference folder: ``$CRAFT_SHARED`` or ``../shared`` (read at each call)."""
     env = os.environ.get("CRAFT_SHARED")
     return Path(env).resolve() if env else (Path.cwd().parent / "shared").resolve()
+
+
+def existing_vocab_dir() -> Path:
+    """VOCAB_DIR for the maintenance scripts that rewrite the checkout's vocabularies: run from
+    anywhere else, the relative default would make a new ``artifacts/vocab`` in that folder."""
+    if not VOCAB_DIR.is_dir():
+        raise SystemExit(f"{VOCAB_DIR.resolve()}: no vocabulary folder here; run this script from the "
+                         "checkout's root, or set CRAFT_ARTIFACTS to its artifacts folder")
+    return VOCAB_DIR

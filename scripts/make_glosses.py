@@ -1,7 +1,8 @@
 """Write artifacts/vocab/wordnet_glosses.tsv: object name -> WordNet 3.0 gloss (its sense).
 
 Run: python scripts/make_glosses.py [--wordnet /usr/share/wordnet]   (Debian: wordnet-base),
-after scripts/make_vocab.py. It also writes artifacts/vocab/default_objects.txt (the union plus
+after scripts/make_vocab.py; ``--verbs-only`` rewrites only the verbs files' glosses from
+artifacts/vocab/written_verb_glosses.tsv and needs no WordNet. It also writes artifacts/vocab/default_objects.txt (the union plus
 artifacts/vocab/household_objects.txt) and rewrites artifacts/vocab/union_objects.txt as
 ``name<TAB>gloss`` (WordNet first, then the written glosses): the default objects file of
 ``craftc build``, so every shipped object is asked about in one stated sense.
@@ -19,7 +20,7 @@ import csv
 import re
 from pathlib import Path
 
-from craft_e.paths import VOCAB_DIR, shared_dir
+from craft_e.paths import VOCAB_DIR, existing_vocab_dir, shared_dir
 from craft_e.schemas.names import normalize_name, normalize_verb
 
 EXAMPLE = re.compile(r';?\s*"[^"]*"')
@@ -54,7 +55,16 @@ def read_noun_index(wordnet: Path) -> dict[str, list[str]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--wordnet", type=Path, default=Path("/usr/share/wordnet"))
+    parser.add_argument("--verbs-only", action="store_true",
+                        help="only gloss the verbs files from written_verb_glosses.tsv (no WordNet needed)")
     args = parser.parse_args()
+    existing_vocab_dir()
+    if args.verbs_only:
+        write_verb_glosses()
+        return
+    if not (args.wordnet / "data.noun").is_file():
+        parser.error(f"no WordNet 3.0 at {args.wordnet} (data.noun): install the Debian package "
+                     "wordnet-base or pass --wordnet DIR; --verbs-only needs none")
     glosses = read_noun_glosses(args.wordnet)
     index = read_noun_index(args.wordnet)
     by_name: dict[str, list[str]] = {}
@@ -107,8 +117,9 @@ def main() -> None:
 def write_verb_glosses() -> None:
     """Gloss the verbs that artifacts/vocab/written_verb_glosses.tsv names, in every verbs file
     holding them. A verb is glossed only where its unglossed prompt reads it in another sense
-    than its vocabulary means (Zhu et al.'s verbs say what is done *to* the object); every other
-    verb stays unglossed and keeps its answers."""
+    than its vocabulary means (Zhu et al.'s verbs say what is done *to* the object) or its
+    unglossed answer mixed senses (spin: whirling and spinning yarn); every other verb stays
+    unglossed and keeps its answers."""
     with (VOCAB_DIR / "written_verb_glosses.tsv").open(encoding="utf-8") as handle:
         senses = {normalize_verb(r["verb"]): r["gloss"].strip() for r in csv.DictReader(handle, delimiter="\t")}
     for path in sorted(VOCAB_DIR.glob("*_verbs.txt")):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import csv
 
-from craft_e.paths import VOCAB_DIR, shared_dir
+from craft_e.paths import VOCAB_DIR, existing_vocab_dir, shared_dir
 from craft_e.schemas.names import normalize_name, normalize_verb
 
 PAPER_STATIC_VERBS = (
@@ -164,7 +164,7 @@ def zhu_objects() -> dict[str, str]:
 
 
 def main() -> None:
-    VOCAB_DIR.mkdir(parents=True, exist_ok=True)
+    existing_vocab_dir()
     imagenet = shared_dir() / "data/imagenet_affordance"
     sets: dict[str, tuple[list[str], list[str]]] = {
         "paper_static": (

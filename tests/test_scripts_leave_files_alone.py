@@ -28,6 +28,29 @@ def test_make_vocab_is_idempotent_and_keeps_the_glosses(tmp_path: Path) -> None:
     assert b"\tto take hold of" in after["union_verbs.txt"]  # a gloss the shipped builds ask in
 
 
+def test_make_glosses_verbs_only_is_idempotent_without_wordnet(tmp_path: Path) -> None:
+    artifacts = tmp_path / "artifacts"
+    shutil.copytree(REPO / "artifacts" / "vocab", artifacts / "vocab")
+    before = {p.name: p.read_bytes() for p in (artifacts / "vocab").iterdir()}
+    env = {**os.environ, "CRAFT_ARTIFACTS": str(artifacts)}
+    done = subprocess.run([sys.executable, str(REPO / "scripts" / "make_glosses.py"), "--verbs-only"], cwd=REPO,
+                          env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert {p.name: p.read_bytes() for p in (artifacts / "vocab").iterdir()} == before
+    assert b"spin\tto set the object itself whirling" in before["sim_verbs.txt"]
+
+
+@pytest.mark.parametrize("script", [["make_vocab.py"], ["make_glosses.py", "--verbs-only"]])
+def test_vocabulary_scripts_run_elsewhere_write_nothing(tmp_path: Path, script: list[str]) -> None:
+    """Run outside the checkout, the relative default made a new artifacts/vocab in that folder."""
+    env = {k: v for k, v in os.environ.items() if k != "CRAFT_ARTIFACTS"}
+    done = subprocess.run([sys.executable, str(REPO / "scripts" / script[0]), *script[1:]], cwd=tmp_path,
+                          env=env, capture_output=True, text=True)
+    assert done.returncode != 0
+    assert "run this script from the checkout's root" in done.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_bench_build_refuses_a_workdir_with_a_users_files(tmp_path: Path) -> None:
     spec = importlib.util.spec_from_file_location("bench_build", REPO / "benchmarks" / "bench_build.py")
     assert spec is not None and spec.loader is not None
