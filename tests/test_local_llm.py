@@ -150,6 +150,15 @@ def test_script_names_a_missing_piece_and_exits_2(tmp_path: Path) -> None:
     assert "missing piece" in result.stderr and "no-craftc" in result.stderr
 
 
+def test_script_refuses_a_file_as_work_folder(tmp_path: Path) -> None:
+    (tmp_path / "notes.txt").write_text("mine")
+    result = subprocess.run([sys.executable, str(SCRIPT), "--work", str(tmp_path / "notes.txt")],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert "is a file; give a folder" in result.stderr and "Traceback" not in result.stderr
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+
+
 def test_script_counts_requests_by_status(tmp_path: Path) -> None:
     log = tmp_path / "server.log"
     log.write_text(
