@@ -67,6 +67,54 @@ def _index_lock(folder: Path) -> Iterator[None]:
         os.close(fd)
 
 
+#: ``<root>/locks/use.lock``: builds and ``curate record`` hold it shared while they read and
+#: write records; ``cache clean --yes`` holds it exclusively, so it never deletes a record a
+#: running build has just stored (no bundle names it yet) or is about to read.
+USE_LOCK = Path("locks") / "use.lock"
+
+
+class CacheBusyError(CacheError):
+    """``cache clean`` found the cache in use by a build or ``curate record``."""
+
+
+@contextlib.contextmanager
+def cache_in_use(root: Path) -> Iterator[None]:
+    """Hold the cache's use lock shared (builds, ``curate record``) for the block.
+
+    A cache that cannot hold a lock file (a read-only checkout) cannot be cleaned either, so the
+    block then runs unlocked.
+    """
+    try:
+        (root / USE_LOCK).parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(root / USE_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH)  # waits only for a running clean, which is short
+        yield
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def cache_for_cleaning(root: Path) -> Iterator[None]:
+    """Hold the cache's use lock exclusively, or raise CacheBusyError at once."""
+    (root / USE_LOCK).parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(root / USE_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise CacheBusyError(
+                f"{root}: a build or `craftc curate record` is using this cache; records it has just "
+                "stored are not in any bundle yet. Run clean again when it has finished (nothing deleted)"
+            ) from None
+        yield
+    finally:
+        os.close(fd)
+
+
 def read_index(path: Path) -> dict[str, str]:
     """``SHA256SUMS`` as {file name: sha256}; a missing index is empty."""
     try:

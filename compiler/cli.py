@@ -7,11 +7,12 @@ record in replay, live provider failed after retries).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 from rich.console import Console
@@ -31,6 +32,9 @@ from ..signals import exit_through_python_on_sigterm
 from .cli_diagnose import register as register_diagnose
 from .cli_pack import register as register_pack
 from .prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
+
+if TYPE_CHECKING:
+    from .cache import RecordCache
 
 app = typer.Typer(
     help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
@@ -188,7 +192,7 @@ def build(
 
     from .build import PHASE, BuildConfig
     from .build import build as run_build
-    from .cache import CacheError
+    from .cache import CacheError, cache_in_use
     from .sources.llm import SourceError
     from .vocab import VocabError
 
@@ -293,7 +297,8 @@ def build(
                     max_wait_s=batch_wait,
                     log=lambda text: err.print(escape(text), highlight=False),
                 )
-            result = run_build(config, transport=transport, progress=tick, batch=batch)
+            with cache_in_use(config.cache_root):  # cache clean waits (refuses) meanwhile
+                result = run_build(config, transport=transport, progress=tick, batch=batch)
             finish_phase()
     except VocabError as exc:
         fail(str(exc))
@@ -571,7 +576,26 @@ def cache_clean(
     a --bundles path that does not exist is an error; and with --verbs every record a replay build of
     those inputs reads. SHA256SUMS stays consistent.
     """
-    from .cache import CacheError, RecordCache
+    from .cache import CacheBusyError, RecordCache, cache_for_cleaning
+
+    store = RecordCache(cache)
+    with contextlib.ExitStack() as held:
+        if yes:  # plan and delete while no build or curate record runs on this cache
+            try:
+                held.enter_context(cache_for_cleaning(cache))
+            except CacheBusyError as exc:
+                fail(str(exc))
+            except OSError as exc:
+                fail(f"{cache}: cannot lock the cache for cleaning ({exc.strerror}); nothing deleted")
+        _clean_locked(store, bundles, verbs, objects, mode, record_provider, model, prompts,
+                      property_pass, yes)
+
+
+def _clean_locked(store: RecordCache, bundles: list[Path] | None, verbs: Path | None, objects: Path,
+                  mode: list[str] | None, record_provider: str, model: str, prompts: str,
+                  property_pass: bool, yes: bool) -> None:
+    """``cache clean``'s plan and deletion (under the exclusive use lock with --yes)."""
+    from .cache import CacheError
     from .cache_clean import (
         ReferencesError,
         build_references,
@@ -582,7 +606,6 @@ def cache_clean(
     from .sources.llm import LLM_SOURCE, SourceError
     from .vocab import VocabError
 
-    store = RecordCache(cache)
     try:
         keys, graphs = bundle_references(bundles, strict=True) if bundles else bundle_references(
             [KB_DIR], strict=False)
@@ -640,7 +663,7 @@ def curate_record(
     Every answer is validated before any is stored (a bad line stores nothing). A prompt that
     already has a different stored answer is an error: stored answers are never rewritten.
     """
-    from .cache import RecordCache
+    from .cache import RecordCache, cache_in_use
     from .curate import CurationError, record_answers
     from .sources.llm import LLMSource, SourceError
     from .vocab import VocabError, read_vocabulary
@@ -648,16 +671,17 @@ def curate_record(
     try:
         vv = read_vocabulary(verbs, kind="verbs")
         ov = read_vocabulary(objects, kind="objects")
-        result = record_answers(
-            LLMSource(RecordCache(cache)),
-            prompt,
-            answers,
-            vv.names,
-            ov.names,
-            version=_prompt_version(prompts),
-            glosses=ov.glosses,
-            verb_glosses=vv.glosses,
-        )
+        with cache_in_use(cache):
+            result = record_answers(
+                LLMSource(RecordCache(cache)),
+                prompt,
+                answers,
+                vv.names,
+                ov.names,
+                version=_prompt_version(prompts),
+                glosses=ov.glosses,
+                verb_glosses=vv.glosses,
+            )
     except (CurationError, VocabError) as exc:
         fail(str(exc))
     except SourceError as exc:

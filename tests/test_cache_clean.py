@@ -16,7 +16,7 @@ from conftest import KB_SMALL, MODEL, PROVIDER, FixtureKB, build_config, fixture
 from typer.testing import CliRunner, Result
 
 from craft_e.compiler.build import build
-from craft_e.compiler.cache import INDEX_FILE, RecordCache, read_index
+from craft_e.compiler.cache import INDEX_FILE, RecordCache, cache_in_use, read_index
 from craft_e.compiler.cache_clean import build_references, bundle_references
 from craft_e.compiler.cli import app
 from craft_e.compiler.llm_knowledge import object_call, verb_call
@@ -182,3 +182,20 @@ def test_stats_per_provider_model_and_prompt_version(kb_a: FixtureKB) -> None:
     assert table.exit_code == 0
     line = next(x for x in table.stdout.splitlines() if "verb_properties" in x)
     assert PROVIDER in line and MODEL in line and " v1 " in line and " 3 " in line
+
+
+def test_clean_refuses_while_a_build_or_curation_uses_the_cache(
+    kb_a: FixtureKB, clone_cache: Callable[[Path], Path], tmp_path: Path
+) -> None:
+    """A running build has stored records no bundle names yet: clean --yes must not delete them."""
+    cache, stab, _ = cache_with_extras(clone_cache, tmp_path / "cache")
+    with cache_in_use(cache):  # what `craftc build` and `craftc curate record` hold
+        busy = craftc("cache", "clean", "--cache", cache, "--bundles", kb_a.bundle, "--yes")
+        assert busy.exit_code == 2, busy.output
+        assert "is using this cache" in " ".join(busy.output.split())
+        assert stab in llm_keys(cache)
+        dry = craftc("cache", "clean", "--cache", cache, "--bundles", kb_a.bundle)
+        assert dry.exit_code == 0 and "would delete 1" in dry.output  # a dry run only reads
+    done = craftc("cache", "clean", "--cache", cache, "--bundles", kb_a.bundle, "--yes")
+    assert done.exit_code == 0, done.output
+    assert stab not in llm_keys(cache)

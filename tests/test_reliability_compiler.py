@@ -128,7 +128,7 @@ def test_cache_verify_ignores_runtime_caches_and_locks(
     cache = clone_cache(tmp_path / "cache")
     (cache / "encoders").mkdir()
     (cache / "encoders" / "conse-classes.npz").write_bytes(b"runtime cache")
-    (cache / "locks").mkdir()
+    (cache / "locks").mkdir(exist_ok=True)  # builds hold locks/use.lock
     (cache / "locks" / "build.lock").write_bytes(b"")
     result = craftc("cache", "verify", "--cache", cache)
     assert result.exit_code == 0, result.output
