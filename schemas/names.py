@@ -128,6 +128,7 @@ _INVARIANT = {
 }
 _IRREGULAR = {
     "knives": "knife",
+    "axes": "axe",  # the -xes rule would give "ax"; the vocabularies spell the tool "axe"
     "wives": "wife",
     "lives": "life",
     "leaves": "leaf",
