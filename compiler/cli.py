@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import (
     BarColumn,
@@ -27,7 +26,7 @@ from rich.progress import (
 )
 
 from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR
-from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail
+from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail, make_console
 from ..signals import exit_through_python_on_sigterm
 from .cli_diagnose import register as register_diagnose
 from .cli_pack import register as register_pack
@@ -48,7 +47,7 @@ curate_app = typer.Typer(
 )
 app.add_typer(cache_app, name="cache")
 app.add_typer(curate_app, name="curate")
-stdout = Console()
+stdout = make_console()
 
 EXIT_SOURCE_FAILED = 3
 PROVIDERS = ("replay", "openai", "gemini", "openai-batch", "gemini-batch")

@@ -17,8 +17,17 @@ from rich.markup import escape
 
 from ..grounding.settings import GroundingSettings
 
-err = Console(stderr=True)
-out = Console()
+
+def make_console(*, stderr: bool = False) -> Console:
+    """A console that wraps lines only on a terminal: piped or logged, rich would wrap at 80
+    columns and split hashes, paths and key ids across lines that scripts grep for."""
+    console = Console(stderr=stderr)
+    console.soft_wrap = not console.is_terminal
+    return console
+
+
+err = make_console(stderr=True)
+out = make_console()
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
 
