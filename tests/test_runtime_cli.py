@@ -146,6 +146,17 @@ def test_bad_outputs_and_seeds_fail_before_any_work(tmp_path: Path, args: list[s
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
 
 
+@pytest.mark.parametrize("command", ["sim", "static"])
+def test_bad_labels_fail_before_the_progress_bar(tmp_path: Path, command: str) -> None:
+    """A labels error used to come after an empty 'episodes 0/?' bar and the models' loading."""
+    labels = tmp_path / "labels.csv"
+    labels.write_text("cut,nothing_here\n", encoding="utf-8")
+    result = runner.invoke(app, ["eval", command, "--labels", str(labels)], env={"COLUMNS": "300"})
+    assert result.exit_code == 2, result.output
+    assert "'nothing_here' is neither a sim asset id nor a plain name" in result.output
+    assert "episodes" not in result.output
+
+
 def test_non_utf8_labels_name_the_file(tmp_path: Path) -> None:
     labels = tmp_path / "labels.csv"
     labels.write_bytes(b"cut,knife\n\xff\xfe,bad\n")

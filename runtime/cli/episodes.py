@@ -84,6 +84,17 @@ def split_names(values: list[str] | None) -> list[str] | None:
     return [n.strip() for v in values for n in v.split(",") if n.strip()]
 
 
+def check_labels(path: Path) -> None:
+    """Exit 2 on a labels file that does not parse, before any model loads or a progress bar
+    is drawn (the evaluation reads it again; it is a few lines)."""
+    from ..evaluation.sim_eval import LabelsError, load_sim_labels
+
+    try:
+        load_sim_labels(path)
+    except LabelsError as exc:
+        fail(str(exc))
+
+
 def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | None) -> list[MethodSpec]:
     """``--methods``/``--kb``/``--kb-dir`` as method specs, or exit 2 naming the bad one."""
     from ...paths import KB_DIR

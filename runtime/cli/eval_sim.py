@@ -62,6 +62,7 @@ def eval_sim(
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir)
+    ep.check_labels(labels)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
                                   colour_cue=colour_cue)
     ep.run_with_progress(
