@@ -17,7 +17,6 @@ cache keeps its own index binding each vector to its phrase (``EmbeddingIndex``)
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import os
@@ -30,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
+from ..files import held_flock
 from ..schemas.v1.records import Record
 
 if TYPE_CHECKING:
@@ -55,16 +55,9 @@ def sha256_hex(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-@contextlib.contextmanager
-def _index_lock(folder: Path) -> Iterator[None]:
+def _index_lock(folder: Path) -> contextlib.AbstractContextManager[None]:
     """Serialize index updates of one folder across threads and processes (flock)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    fd = os.open(folder / _LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)
+    return held_flock(folder / _LOCK_FILE)
 
 
 #: ``<root>/locks/use.lock``: builds and ``curate record`` hold it shared while they read and
@@ -79,40 +72,23 @@ class CacheBusyError(CacheError):
 
 @contextlib.contextmanager
 def cache_in_use(root: Path) -> Iterator[None]:
-    """Hold the cache's use lock shared (builds, ``curate record``) for the block.
+    """Hold the cache's use lock shared (builds, ``curate record``) for the block; it waits only
+    for a running clean, which is short.
 
     A cache that cannot hold a lock file (a read-only checkout) cannot be cleaned either, so the
     block then runs unlocked.
     """
-    try:
-        (root / USE_LOCK).parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(root / USE_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError:
+    with contextlib.ExitStack() as held:
+        with contextlib.suppress(OSError):
+            held.enter_context(held_flock(root / USE_LOCK, shared=True))
         yield
-        return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH)  # waits only for a running clean, which is short
-        yield
-    finally:
-        os.close(fd)
 
 
-@contextlib.contextmanager
-def cache_for_cleaning(root: Path) -> Iterator[None]:
+def cache_for_cleaning(root: Path) -> contextlib.AbstractContextManager[None]:
     """Hold the cache's use lock exclusively, or raise CacheBusyError at once."""
-    (root / USE_LOCK).parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(root / USE_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise CacheBusyError(
-                f"{root}: a build or `craftc curate record` is using this cache; records it has just "
-                "stored are not in any bundle yet. Run clean again when it has finished (nothing deleted)"
-            ) from None
-        yield
-    finally:
-        os.close(fd)
+    return held_flock(root / USE_LOCK, busy=lambda: CacheBusyError(
+        f"{root}: a build or `craftc curate record` is using this cache; records it has just "
+        "stored are not in any bundle yet. Run clean again when it has finished (nothing deleted)"))
 
 
 def read_index(path: Path) -> dict[str, str]:

@@ -4,15 +4,18 @@
 the line); ``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
 large); ``fsync_dir`` makes a rename durable (the directory entry reaches the disk, not only the
 file); ``current_umask`` reads the process umask so staged folders get the permissions a plain
-``mkdir`` would have given them (``mkdtemp`` creates them 0o700).
+``mkdir`` would have given them (``mkdtemp`` creates them 0o700); ``held_flock`` holds an
+advisory lock file (the record cache's index and use locks, ``craft install``'s lock).
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import json
 import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,3 +55,25 @@ def read_json(path: Path, what: str, error: type[Exception] = ValueError) -> Any
         raise error(f"{path}: {what} not found") from None
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+
+
+@contextlib.contextmanager
+def held_flock(path: Path, *, shared: bool = False, busy: Callable[[], Exception] | None = None) -> Iterator[None]:
+    """Hold ``flock`` on ``path`` (created, with its folder) for the block: exclusive, or shared.
+
+    With ``busy``, a lock another process holds raises ``busy()`` at once instead of waiting.
+    The kernel releases the lock when the process dies, so a crash never leaves it stuck.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
+        try:
+            fcntl.flock(fd, mode | (fcntl.LOCK_NB if busy is not None else 0))
+        except BlockingIOError:
+            if busy is None:
+                raise
+            raise busy() from None
+        yield
+    finally:
+        os.close(fd)

@@ -9,11 +9,15 @@ copy of its cache, whose embeddings are already computed.
 
 from __future__ import annotations
 
+import importlib.machinery
+import importlib.util
 import os
 import shutil
+import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import pytest
@@ -195,3 +199,20 @@ def bare_robot() -> Iterator[Callable[..., CR3Robot]]:
     finally:
         for client in clients:
             p.disconnect(physicsClientId=client)
+
+
+def load_script(path: Path) -> ModuleType:
+    """Import a script of scripts/ or benchmarks/ (no package, maybe no .py suffix) as a module,
+    to call its functions. It is in ``sys.modules`` only while it runs: its dataclasses look
+    their module up while they are built."""
+    name = path.name.removesuffix(".py")
+    loader = importlib.machinery.SourceFileLoader(name, str(path))
+    spec = importlib.util.spec_from_loader(name, loader)
+    assert spec is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        loader.exec_module(module)
+    finally:
+        sys.modules.pop(name, None)
+    return module

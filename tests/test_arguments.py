@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+from conftest import load_script
 
 from craft_e.arguments import number_list, output_file, positive_int
 
@@ -16,15 +15,7 @@ BENCH_SCALE = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_scale.
 
 
 def _bench_scale() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_scale", BENCH_SCALE)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.modules.pop(spec.name, None)
-    return module
+    return load_script(BENCH_SCALE)
 
 
 def test_positive_int_accepts_counts_and_names_what_is_wrong() -> None:

@@ -11,8 +11,6 @@ record carries the server's provider id and model name and that the bundle valid
 
 from __future__ import annotations
 
-import importlib.machinery
-import importlib.util
 import json
 import os
 import subprocess
@@ -22,6 +20,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+from conftest import load_script
 from servers import FakeServer, Received, Reply, openai_reply
 
 from craft_e.compiler.cache import RecordCache
@@ -128,16 +127,7 @@ def test_rejects_json_schema_needs_status_and_field() -> None:
 
 
 def _load_script() -> ModuleType:
-    loader = importlib.machinery.SourceFileLoader("local_llm", str(SCRIPT))
-    spec = importlib.util.spec_from_loader("local_llm", loader)
-    assert spec is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["local_llm"] = module  # dataclasses look their module up while building
-    try:
-        loader.exec_module(module)
-    finally:
-        del sys.modules["local_llm"]
-    return module
+    return load_script(SCRIPT)
 
 
 def test_script_names_a_missing_piece_and_exits_2(tmp_path: Path) -> None:

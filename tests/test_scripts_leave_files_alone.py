@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import shutil
 import subprocess
@@ -12,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import load_script
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -52,14 +52,7 @@ def test_vocabulary_scripts_run_elsewhere_write_nothing(tmp_path: Path, script: 
 
 
 def test_bench_build_refuses_a_workdir_with_a_users_files(tmp_path: Path) -> None:
-    spec = importlib.util.spec_from_file_location("bench_build", REPO / "benchmarks" / "bench_build.py")
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = bench  # its dataclasses look their module up
-    try:
-        spec.loader.exec_module(bench)
-    finally:
-        sys.modules.pop(spec.name, None)
+    bench = load_script(REPO / "benchmarks" / "bench_build.py")
     (tmp_path / "verbs.txt").write_text("mine\n")
     with pytest.raises(SystemExit) as stop:
         bench.main(["--verbs", "2", "--objects", "3", "--properties", "2", "--workdir", str(tmp_path)])

@@ -33,16 +33,15 @@ once, so a concurrent switch cannot make one load read files of two versions.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import re
 import secrets
 import shutil
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ...files import fsync_dir
+from ...files import fsync_dir, held_flock
 from ...schemas.v1.bundle import Manifest
 from .package import (
     DEFAULT_LIMITS,
@@ -105,25 +104,11 @@ def version_id(manifest: Manifest) -> str:
     return f"{manifest.kb_name}-{manifest.kb_version}-{manifest.content_sha256[:12]}"
 
 
-@contextlib.contextmanager
-def _locked(into: Path) -> Iterator[None]:
-    """Hold ``into/.lock`` exclusively; a second installer fails fast instead of interleaving.
-
-    ``flock`` is released by the kernel when a process dies, so a crash never leaves it stuck.
-    """
-    into.mkdir(parents=True, exist_ok=True)
-    fd = os.open(into / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InstallError(
-                f"{into}: another `craft install` or `craft rollback` is running; wait for it "
-                "and retry"
-            ) from None
-        yield
-    finally:
-        os.close(fd)
+def _locked(into: Path) -> contextlib.AbstractContextManager[None]:
+    """Hold ``into/.lock`` exclusively; a second installer fails fast instead of interleaving
+    (``flock``: the kernel releases it when a process dies, so a crash never leaves it stuck)."""
+    return held_flock(into / LOCK, busy=lambda: InstallError(
+        f"{into}: another `craft install` or `craft rollback` is running; wait for it and retry"))
 
 
 def _link_target(into: Path, name: str) -> str | None:
