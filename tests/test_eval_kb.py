@@ -144,3 +144,12 @@ def test_folds_are_at_most_the_labelled_verbs(tmp_path: Path, runtime_kbs: Runti
     assert result.exit_code == 0, result.output
     data = json.loads(out_json.read_text())
     assert data["config"]["folds"] == 3 and "nan" not in result.output.lower()  # cut, pour, fly
+
+
+def test_the_committed_sim_label_sets_load_and_do_not_share_a_verb() -> None:
+    """sim-val covers sim verbs that sim-dev lacks (a check on verbs no default was chosen on)."""
+    from craft_e.runtime.evaluation.kb_eval import resolve_labels
+
+    dev, val = resolve_labels("sim-dev"), resolve_labels("sim-val")
+    assert val.name == "sim-val" and len(val.positives) == 23
+    assert not set(dev.positives) & set(val.positives)

@@ -14,7 +14,7 @@ def eval_kb(
     kb: Annotated[list[Path] | None, typer.Option(
         help="Bundle(s) to score (repeatable; default: craft-e-default, direct-llm, conceptnet).")] = None,
     labels: Annotated[list[str] | None, typer.Option(
-        help="zhu | sim-dev | labels .json {verb: [objects]} | verb,object .csv over sim assets "
+        help="zhu | sim-dev | sim-val | labels .json {verb: [objects]} | verb,object .csv over sim assets "
              "(repeatable; default: zhu and sim-dev).")] = None,
     energy_form: Annotated[list[str] | None, typer.Option(
         "--energy-form", help="E_aff form(s) (repeatable; default: every form).")] = None,

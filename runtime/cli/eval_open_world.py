@@ -14,7 +14,7 @@ from .common import checked_output_file
 def eval_open_world(
     kb: Annotated[Path, typer.Option(help="Bundle to evaluate.")] = KB_DIR / "craft-e-default",
     labels: Annotated[list[str] | None, typer.Option(
-        help="zhu | sim-dev | labels .json | verb,object .csv (repeatable; default: zhu and sim-dev).")] = None,
+        help="zhu | sim-dev | sim-val | labels .json | verb,object .csv (repeatable; default: zhu and sim-dev).")] = None,
     energy_form: Annotated[str | None, typer.Option(help="E_aff form (default: the bundle's).")] = None,
     episodes: Annotated[int, typer.Option(min=1, help="5-candidate episodes per verb.")] = 100,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the episodes.")] = 0,

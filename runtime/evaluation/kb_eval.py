@@ -23,7 +23,8 @@ reported, so a reader sees whether the choice holds on verbs it was not chosen o
 
 Label sets: ``zhu`` (the public Zhu et al. 2014 matrix, 62 objects x 15 affordances),
 ``sim-dev`` (``artifacts/labels/sim_dev_labels.csv``; candidates = the sim catalogue's object
-names), or a file: ``{"verb": ["object", ...]}`` JSON (candidates: its ``"_objects"`` list, else
+names), ``sim-val`` (``artifacts/labels/sim_val_labels.csv``: the 30 sim verbs sim-dev lacks,
+written after every default was chosen, so a check rather than a basis for choosing), or a file: ``{"verb": ["object", ...]}`` JSON (candidates: its ``"_objects"`` list, else
 ``--objects``, else the ImageNet vocabulary) or a ``verb,object`` CSV over sim assets. Everything
 is deterministic: episodes come from a generator seeded by ``(seed, crc32(label set),
 crc32(verb))``.
@@ -41,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ...files import read_json, sha256_file
-from ...paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR, shared_dir
+from ...paths import KB_DIR, SIM_DEV_LABELS, SIM_VAL_LABELS, VOCAB_DIR, shared_dir
 from ..grounding.energies import ENERGY_FORMS, EnergyForm
 from ..grounding.grounder import normalize_verb_name
 from .common import (
@@ -58,7 +59,7 @@ CANDIDATES = 5
 METRICS = ("ap", "auc", "top1")
 METRIC_LABELS = {"ap": "AP", "auc": "AUC", "top1": "top-1"}
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "direct-llm", KB_DIR / "conceptnet"]
-BUILTIN_LABELS = ("zhu", "sim-dev")
+BUILTIN_LABELS = ("zhu", "sim-dev", "sim-val")
 
 
 class KBLabelsError(ValueError):
@@ -151,17 +152,19 @@ def json_labels(path: Path, objects: Sequence[str] | None = None) -> LabelSet:
 
 
 def resolve_labels(spec: str, objects: Sequence[str] | None = None) -> LabelSet:
-    """``zhu`` | ``sim-dev`` | a ``.json`` or ``.csv`` path (see the module docstring)."""
+    """``zhu`` | ``sim-dev`` | ``sim-val`` | a ``.json`` or ``.csv`` path (see the module docstring)."""
     if spec == "zhu":
         return zhu_labels()
     if spec == "sim-dev":
         return sim_labels(SIM_DEV_LABELS)
+    if spec == "sim-val":
+        return sim_labels(SIM_VAL_LABELS, "sim-val")
     path = Path(spec)
     if path.suffix.lower() == ".csv":
         return sim_labels(path, path.stem)
     if path.suffix.lower() == ".json":
         return json_labels(path, objects)
-    raise KBLabelsError(f"--labels {spec!r}: use zhu, sim-dev, a .json or a .csv file")
+    raise KBLabelsError(f"--labels {spec!r}: use zhu, sim-dev, sim-val, a .json or a .csv file")
 
 
 # ---------------------------------------------------------------------------------------------
