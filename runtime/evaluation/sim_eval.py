@@ -56,7 +56,11 @@ if TYPE_CHECKING:
     from ..sim.retry import RetryConfig
 
 DISTRACTORS = 4
-MAX_DRAWS = 50  # distractor sets tried per episode before giving up (loudly)
+#: Distractor sets tried per episode before giving up (loudly). A draw that succeeds is the same
+#: whatever this is (later draws continue the same generator), so raising it moves no episode
+#: that was placed before. The chain spreads as it settles: hang/chain layout 1 needs 104 draws
+#: (sim-val labels), every sim-dev episode fewer than 50.
+MAX_DRAWS = 200
 #: Restarts of the placement check before a distractor set is redrawn. ``make_scene`` later runs
 #: the same sampler from the same seed with all its restarts, so it finds the same layout; fewer
 #: here only makes a crowded set cost 0.3 s instead of 1.5 s before it is redrawn.
