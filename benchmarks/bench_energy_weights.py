@@ -48,11 +48,12 @@ def imagenet_scores(specs: list[MethodSpec], threads: int) -> dict[str, dict[str
             if r.name in {s.name for s in specs}}
 
 
-def static_scores(specs: list[MethodSpec], jobs: int) -> dict[str, dict[str, dict[str, float]]]:
-    """``{column: {method: {verb: accuracy}}}`` on the rendered sim-dev scenes."""
+def static_scores(specs: list[MethodSpec], jobs: int,
+                  labels: Path = SIM_DEV_LABELS) -> dict[str, dict[str, dict[str, float]]]:
+    """``{column: {method: {verb: accuracy}}}`` on the rendered scenes of ``labels`` (sim-dev)."""
     from craft_e.runtime.evaluation.static_eval import evaluate_static
 
-    report = evaluate_static(SIM_DEV_LABELS, backends=("grconvnet",), methods=specs, jobs=jobs).to_dict()
+    report = evaluate_static(labels, backends=("grconvnet",), methods=specs, jobs=jobs).to_dict()
     hits: dict[str, dict[str, dict[str, list[float]]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for ep in report["episodes"]:
         for column, key in STATIC_SETTINGS.items():
@@ -100,6 +101,9 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--no-static", action="store_true")
+    parser.add_argument("--static-labels", type=Path, default=SIM_DEV_LABELS,
+                        help="labels of the rendered scenes (default: sim-dev; artifacts/labels/sim_val_labels.csv "
+                        "measures on the verbs no default was chosen on)")
     parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("--markdown", type=output_file, default=None)
     args = parser.parse_args()
@@ -110,7 +114,7 @@ def main() -> None:
 
     columns: dict[str, dict[str, dict[str, float]]] = {"imagenet": imagenet_scores(specs, args.threads)}
     if not args.no_static:
-        columns |= {f"static_{c}": s for c, s in static_scores(specs, args.jobs).items()}
+        columns |= {f"static_{c}": s for c, s in static_scores(specs, args.jobs, args.static_labels).items()}
     lvo = {}
     for kb in kbs:
         # one unit per (protocol, verb): the ImageNet verbs and the static full pipeline's verbs
@@ -137,12 +141,14 @@ def main() -> None:
                      + ", ".join(f"{g:g}: {100 * v:.1f}" for g, v in swing["fixed_mean_without"].items()))
     table = "\n".join(lines)
     print(table)
+    n_static = len(next(iter(columns["static_full"].values()))) if "static_full" in columns else 0
     if args.markdown is not None:
         args.markdown.write_text(
             "### E_align weight (gamma) on the dev labels (`benchmarks/bench_energy_weights.py`)\n\n"
-            "Mean over verbs of: ImageNet dev single-affordance top-1 (6 verbs); rendered sim-dev scenes' "
-            "accuracy with GR-ConvNet + predicted ROIs (`static_full`) and with GT grasps + GT ROIs "
-            "(`static_gt`), 12 verbs. Percent.\n\n" + table + "\n", encoding="utf-8")
+            "Mean over verbs of: ImageNet dev single-affordance top-1 (6 verbs); rendered scenes' "
+            f"accuracy (labels `{args.static_labels.name}`, {n_static} verbs) with GR-ConvNet + predicted "
+            "ROIs (`static_full`) and with GT grasps + GT ROIs (`static_gt`). Percent.\n\n"
+            + table + "\n", encoding="utf-8")
     if args.json is not None:
         args.json.write_text(json.dumps({"gammas": gammas, "per_verb": columns, "leave_one_verb_out": lvo},
                                         indent=1, sort_keys=True) + "\n", encoding="utf-8")
