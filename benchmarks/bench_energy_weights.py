@@ -107,6 +107,8 @@ def main() -> None:
     parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("--markdown", type=output_file, default=None)
     args = parser.parse_args()
+    if not args.no_static and not args.static_labels.is_file():
+        parser.error(f"--static-labels {args.static_labels}: no such labels file")
     gammas: list[float] = args.gammas
     kbs = args.kb or ["craft-e-default", "direct-llm"]
     specs = [MethodSpec(_row(kb, g), f"{kb}, beta 1, gamma {g:g}", KB_DIR / kb, beta=1.0, gamma=g)

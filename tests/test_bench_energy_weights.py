@@ -43,3 +43,12 @@ def test_a_verb_that_alone_favours_a_gamma_does_not_choose_it_for_itself() -> No
     swing = lvo["largest_swing"]
     assert swing["unit"] == "cut"  # moves 0.4 with gamma; hit 0.1, eat 0.05
     assert swing["fixed_mean_without"] == {0.0: pytest.approx(0.85), 0.5: pytest.approx(0.925)}
+
+
+def test_a_missing_static_labels_file_fails_before_any_work(monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr("sys.argv", ["bench_energy_weights.py", "--static-labels", "no-such-labels.csv"])
+    with pytest.raises(SystemExit) as stopped:
+        _script().main()
+    assert stopped.value.code == 2
+    assert "--static-labels no-such-labels.csv: no such labels file" in capsys.readouterr().err
