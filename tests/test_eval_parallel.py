@@ -29,6 +29,21 @@ def test_ordered_map_keeps_input_order_in_workers_and_in_process() -> None:
         list(ordered_map(_add, items, jobs=0, build=_offset))
 
 
+def _worker_urdf_dir(ctx: int, item: int) -> str:
+    """The derived-URDF folder of the worker that runs ``item`` (made on first use)."""
+    from craft_e.runtime.sim.collision_meshes import _derived_dir
+
+    return str(_derived_dir())
+
+
+def test_workers_remove_their_temporary_folders_when_the_map_ends() -> None:
+    """Workers were terminated (``with Pool``), so their exit hooks never ran: every
+    ``craft eval sim|static --jobs 2`` left two /tmp/craft-e-urdf-* folders behind."""
+    folders = set(ordered_map(_worker_urdf_dir, list(range(4)), jobs=2, build=_offset))
+    assert folders and all(folder.startswith("/") for folder in folders)
+    assert not [folder for folder in folders if Path(folder).exists()]
+
+
 def _cli(tmp_path: Path, command: str, jobs: int) -> dict[str, Any]:
     from typer.testing import CliRunner
 

@@ -51,5 +51,14 @@ def ordered_map(
             yield fn(ctx, item)
         return
     spawn = multiprocessing.get_context("spawn")
-    with spawn.Pool(min(jobs, len(items)), initializer=_init, initargs=(build,)) as pool:
+    pool = spawn.Pool(min(jobs, len(items)), initializer=_init, initargs=(build,))
+    try:
         yield from pool.imap(partial(_call, fn), items, chunksize=1)
+        # Done: let the workers exit on their own, so their exit hooks run (``terminate``, what
+        # ``with Pool`` does, kills them and left each worker's temporary folders behind).
+        pool.close()
+    except BaseException:
+        pool.terminate()  # an error, Ctrl-C or an abandoned iterator: stop at once
+        raise
+    finally:
+        pool.join()

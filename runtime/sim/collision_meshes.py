@@ -25,6 +25,7 @@ import atexit
 import contextlib
 import hashlib
 import json
+import multiprocessing.util
 import os
 import shutil
 import tempfile
@@ -282,8 +283,11 @@ def fine_mesh(asset_id: str, directory: Path = COLLISION_DIR) -> Path | None:
 
 @cache
 def _derived_dir() -> Path:
+    """This process's folder of derived URDFs, removed when it exits: ``atexit`` in a main
+    process, the multiprocessing finalizer in an evaluation worker (workers skip atexit)."""
     path = Path(tempfile.mkdtemp(prefix="craft-e-urdf-"))
     atexit.register(shutil.rmtree, path, True)
+    multiprocessing.util.Finalize(None, shutil.rmtree, args=(path, True), exitpriority=0)
     return path
 
 
