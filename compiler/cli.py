@@ -7,12 +7,11 @@ record in replay, live provider failed after retries).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import Annotated, Literal
 
 import typer
 from rich.markup import escape
@@ -31,9 +30,6 @@ from ..signals import exit_through_python_on_sigterm
 from .cli_diagnose import register as register_diagnose
 from .cli_pack import register as register_pack
 from .prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
-
-if TYPE_CHECKING:
-    from .cache import RecordCache
 
 app = typer.Typer(
     help="CRAFT-E knowledge compiler: verbs -> properties -> objects, offline and verifiable.",
@@ -545,6 +541,7 @@ def cache_stats(
 
 @cache_app.command("clean")
 def cache_clean(
+    ctx: typer.Context,
     cache: ExistingCacheOpt = CACHE_DIR,
     verbs: Annotated[
         Path | None, typer.Option(help="Also keep what a replay build of these verbs reads.")
@@ -575,26 +572,7 @@ def cache_clean(
     a --bundles path that does not exist is an error; and with --verbs every record a replay build of
     those inputs reads. SHA256SUMS stays consistent.
     """
-    from .cache import CacheBusyError, RecordCache, cache_for_cleaning
-
-    store = RecordCache(cache)
-    with contextlib.ExitStack() as held:
-        if yes:  # plan and delete while no build or curate record runs on this cache
-            try:
-                held.enter_context(cache_for_cleaning(cache))
-            except CacheBusyError as exc:
-                fail(str(exc))
-            except OSError as exc:
-                fail(f"{cache}: cannot lock the cache for cleaning ({exc.strerror}); nothing deleted")
-        _clean_locked(store, bundles, verbs, objects, mode, record_provider, model, prompts,
-                      property_pass, yes)
-
-
-def _clean_locked(store: RecordCache, bundles: list[Path] | None, verbs: Path | None, objects: Path,
-                  mode: list[str] | None, record_provider: str, model: str, prompts: str,
-                  property_pass: bool, yes: bool) -> None:
-    """``cache clean``'s plan and deletion (under the exclusive use lock with --yes)."""
-    from .cache import CacheError
+    from .cache import CacheBusyError, CacheError, RecordCache, cache_for_cleaning
     from .cache_clean import (
         ReferencesError,
         build_references,
@@ -605,6 +583,14 @@ def _clean_locked(store: RecordCache, bundles: list[Path] | None, verbs: Path | 
     from .sources.llm import LLM_SOURCE, SourceError
     from .vocab import VocabError
 
+    if yes:  # plan and delete while no build or curate record runs on this cache (held to the end)
+        try:
+            ctx.with_resource(cache_for_cleaning(cache))
+        except CacheBusyError as exc:
+            fail(str(exc))
+        except OSError as exc:
+            fail(f"{cache}: cannot lock the cache for cleaning ({exc.strerror}); nothing deleted")
+    store = RecordCache(cache)
     try:
         keys, graphs = bundle_references(bundles, strict=True) if bundles else bundle_references(
             [KB_DIR], strict=False)

@@ -8,6 +8,8 @@ import argparse
 import math
 from pathlib import Path
 
+from .files import output_file_problem
+
 
 def positive_int(text: str) -> int:
     """An integer >= 1 (counts of scenes, episodes, repeats, pairs)."""
@@ -21,13 +23,15 @@ def positive_int(text: str) -> int:
 
 
 def output_file(text: str) -> Path:
-    """A file a script writes after minutes of work (--json, --markdown): its folder must exist
-    and the path must not be a folder, checked before the work rather than as a traceback after."""
+    """A file a script writes after minutes of work (--json, --markdown): checked before the work
+    rather than as a traceback after it. The scripts do not create folders, so its folder must
+    exist too."""
     path = Path(text)
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is a folder; give a file path")
-    if not path.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{path.parent} does not exist; create it or give another path")
+    problem = output_file_problem(path)
+    if problem is None and not path.parent.is_dir():
+        problem = f"{path.parent} does not exist; create it or give another path"
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
     return path
 
 

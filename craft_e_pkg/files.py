@@ -5,7 +5,9 @@ the line); ``sha256_file`` identifies weights, dumps and label files by content 
 large); ``fsync_dir`` makes a rename durable (the directory entry reaches the disk, not only the
 file); ``current_umask`` reads the process umask so staged folders get the permissions a plain
 ``mkdir`` would have given them (``mkdtemp`` creates them 0o700); ``held_flock`` holds an
-advisory lock file (the record cache's index and use locks, ``craft install``'s lock).
+advisory lock file (the record cache's index and use locks, ``craft install``'s lock);
+``output_file_problem`` says why a path cannot be written as a file (both CLIs' and the benchmark
+scripts' output options check it before any work).
 """
 
 from __future__ import annotations
@@ -77,3 +79,22 @@ def held_flock(path: Path, *, shared: bool = False, busy: Callable[[], Exception
         yield
     finally:
         os.close(fd)
+
+
+def output_file_problem(path: Path) -> str | None:
+    """Why ``path`` cannot be written as a file (None when it can): checked when the option is
+    parsed, so a bad ``--json``/``--markdown``/``--plot`` fails before the work, not after it
+    with half the outputs written."""
+    if path.is_dir():
+        return f"{path} is a folder; give a file path inside it, e.g. {path / ('out' + (path.suffix or '.json'))}"
+    if path.exists() and not path.is_file():
+        return f"{path} exists and is not a regular file"
+    return ancestor_problem(path)
+
+
+def ancestor_problem(path: Path) -> str | None:
+    """Why nothing can be created at ``path`` because an existing ancestor is a file (or None)."""
+    for ancestor in path.absolute().parents:
+        if ancestor.exists():
+            return None if ancestor.is_dir() else f"{ancestor} is a file, so {path} cannot be created under it"
+    return None

@@ -2,9 +2,9 @@
 
 Run: python scripts/make_glosses.py [--wordnet /usr/share/wordnet]   (Debian: wordnet-base),
 after scripts/make_vocab.py; ``--verbs-only`` rewrites only the verbs files' glosses from
-artifacts/vocab/written_verb_glosses.tsv and needs no WordNet. It also writes artifacts/vocab/default_objects.txt (the union plus
-artifacts/vocab/household_objects.txt) and rewrites artifacts/vocab/union_objects.txt as
-``name<TAB>gloss`` (WordNet first, then the written glosses): the default objects file of
+artifacts/vocab/written_verb_glosses.tsv and needs no WordNet. It also writes
+artifacts/vocab/default_objects.txt (the union plus artifacts/vocab/household_objects.txt) and
+rewrites artifacts/vocab/union_objects.txt as ``name<TAB>gloss`` (WordNet first, then the written glosses): the default objects file of
 ``craftc build``, so every shipped object is asked about in one stated sense.
 
 Senses come from the vocabularies' own WordNet ids, never guessed: ImageNet classes from the wnid

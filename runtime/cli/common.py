@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from ...files import ancestor_problem, output_file_problem
 from ..grounding.settings import GroundingSettings
 
 
@@ -76,24 +77,6 @@ def read_names(path: Path, what: str) -> list[str]:
         fail(f"{path}: cannot read the {what} ({exc})")
 
 
-def output_file_problem(path: Path) -> str | None:
-    """Why ``path`` cannot be written as a file (None when it can): checked when the option is
-    parsed, so a bad ``--json``/``--markdown``/``--plot`` fails before the work, not after it
-    with half the outputs written."""
-    if path.is_dir():
-        return f"{path} is a folder; give a file path inside it, e.g. {path / ('out' + (path.suffix or '.json'))}"
-    if path.exists() and not path.is_file():
-        return f"{path} exists and is not a regular file"
-    return _ancestor_problem(path)
-
-
-def _ancestor_problem(path: Path) -> str | None:
-    for ancestor in path.absolute().parents:
-        if ancestor.exists():
-            return None if ancestor.is_dir() else f"{ancestor} is a file, so {path} cannot be created under it"
-    return None
-
-
 def checked_output_file(value: Path | None) -> Path | None:
     """typer callback of an output file option (see ``output_file_problem``)."""
     problem = None if value is None else output_file_problem(value)
@@ -119,7 +102,7 @@ def checked_output_folder(value: Path | None) -> Path | None:
     if value is None:
         return value
     problem = (f"{value} is a file; give a folder" if value.exists() and not value.is_dir()
-               else _ancestor_problem(value))
+               else ancestor_problem(value))
     if problem is not None:
         raise typer.BadParameter(problem)
     return value

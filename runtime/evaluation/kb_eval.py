@@ -24,7 +24,8 @@ reported, so a reader sees whether the choice holds on verbs it was not chosen o
 Label sets: ``zhu`` (the public Zhu et al. 2014 matrix, 62 objects x 15 affordances),
 ``sim-dev`` (``artifacts/labels/sim_dev_labels.csv``; candidates = the sim catalogue's object
 names), ``sim-val`` (``artifacts/labels/sim_val_labels.csv``: the 30 sim verbs sim-dev lacks,
-written after every default was chosen, so a check rather than a basis for choosing), or a file: ``{"verb": ["object", ...]}`` JSON (candidates: its ``"_objects"`` list, else
+written after every default was chosen, so a check rather than a basis for choosing), or a
+file: ``{"verb": ["object", ...]}`` JSON (candidates: its ``"_objects"`` list, else
 ``--objects``, else the ImageNet vocabulary) or a ``verb,object`` CSV over sim assets. Everything
 is deterministic: episodes come from a generator seeded by ``(seed, crc32(label set),
 crc32(verb))``.
