@@ -1,21 +1,26 @@
-"""Dev study: the weight of E_align (gamma) in the paper's energy, on our development labels only.
+"""Dev study: the weights of E_aff (beta) and E_align (gamma) in the paper's energy, on our
+development labels only.
 
-The paper fixes alpha = beta = gamma = 1 (Sec. IV). On the ImageNet dev table affordance-only
-(gamma = 0) beats CRAFT-E (gamma = 1), so before anyone moves the default this script measures
-gamma on *every* dev protocol that has images, per verb, with leave-one-verb-out selection:
+The paper fixes alpha = beta = gamma = 1 (Sec. IV) for its sum-tanh E_aff, whose affording objects
+sit at -1. Our default E_aff (the normalized product, issue 9) rarely reaches -1, so this script
+measures the weights on *every* dev protocol that has images, per verb, with leave-one-verb-out
+selection:
 
 * ``imagenet``: ``craft eval imagenet``'s episodes on ``tests/fixtures/imagenet_dev_labels.json``
   (6 verbs, single-affordance top-1, alpha = 0 as that protocol fixes);
-* ``static``: ``craft eval static``'s rendered testbed scenes on ``artifacts/labels/sim_dev_labels.csv``
-  (12 verbs, 105 scenes), accuracy with GR-ConvNet grasps and predicted ROIs (the full pipeline)
+* ``static_full:<labels>`` / ``static_gt:<labels>``: ``craft eval static``'s rendered testbed
+  scenes of each ``--static-labels`` file (default: sim-dev, 12 verbs, 105 scenes, and sim-val,
+  23 verbs, 378 scenes), accuracy with GR-ConvNet grasps and predicted ROIs (the full pipeline)
   and with ground-truth grasps and ROIs (knowledge and recognition only).
 
-Leave-one-verb-out: each (protocol, verb) unit in turn is held out, gamma is chosen by the mean
-score of the other units (ties go to the paper's 1.0, then to the larger gamma), and the held-out
-unit is scored with it. The withheld benchmark labels are never read.
+Leave-one-verb-out: each unit — an ImageNet verb or a full-pipeline verb of one labels file — in
+turn is held out, the weights (beta, gamma) are chosen by the mean score of the other units (ties
+go to the paper's (1, 1), then to the larger weights), and the held-out unit is scored with them.
+The withheld benchmark labels are never read. The default grid is the one the shipped default
+(beta 3, gamma 0.5, ``grounding/settings.py``) was chosen from.
 
 Run: ``.venv/bin/python benchmarks/bench_energy_weights.py [--jobs 2] --json OUT --markdown OUT``
-(~6 min on 2 cores; ``--no-static`` runs the ImageNet part alone in ~20 s).
+(~30 min on 2 cores; ``--no-static`` runs the ImageNet part alone in ~30 s).
 """
 
 from __future__ import annotations
@@ -27,16 +32,22 @@ from pathlib import Path
 from typing import Any
 
 from craft_e.arguments import number_list, output_file
-from craft_e.paths import KB_DIR, SIM_DEV_LABELS
+from craft_e.paths import KB_DIR, SIM_DEV_LABELS, SIM_VAL_LABELS
 from craft_e.runtime.evaluation.methods import MethodSpec
 
 IMAGENET_DEV = Path("tests/fixtures/imagenet_dev_labels.json")
-PAPER_GAMMA = 1.0
+Weights = tuple[float, float]  # (beta, gamma)
+PAPER_WEIGHTS: Weights = (1.0, 1.0)
 STATIC_SETTINGS = {"full": "grconvnet/predicted", "gt": "gt/gt"}  # column -> static setting key
 
 
-def _row(kb: str, gamma: float) -> str:
-    return f"{kb} @ gamma {gamma:g}"
+def _row(kb: str, weights: Weights) -> str:
+    return f"{kb} @ beta {weights[0]:g}, gamma {weights[1]:g}"
+
+
+def _key(weights: Weights) -> str:
+    """JSON key of a weight pair."""
+    return f"beta {weights[0]:g}, gamma {weights[1]:g}"
 
 
 def imagenet_scores(specs: list[MethodSpec], threads: int) -> dict[str, dict[str, float]]:
@@ -50,7 +61,7 @@ def imagenet_scores(specs: list[MethodSpec], threads: int) -> dict[str, dict[str
 
 def static_scores(specs: list[MethodSpec], jobs: int,
                   labels: Path = SIM_DEV_LABELS) -> dict[str, dict[str, dict[str, float]]]:
-    """``{column: {method: {verb: accuracy}}}`` on the rendered scenes of ``labels`` (sim-dev)."""
+    """``{column: {method: {verb: accuracy}}}`` on the rendered scenes of ``labels``."""
     from craft_e.runtime.evaluation.static_eval import evaluate_static
 
     report = evaluate_static(labels, backends=("grconvnet",), methods=specs, jobs=jobs).to_dict()
@@ -63,25 +74,35 @@ def static_scores(specs: list[MethodSpec], jobs: int,
             for c, by_m in hits.items()}
 
 
-def leave_one_verb_out(per_gamma: dict[float, dict[str, float]]) -> dict[str, Any]:
-    """Choose gamma on all units but one, score the held-out unit; see the module docstring."""
-    gammas = sorted(per_gamma)
-    units = sorted(per_gamma[gammas[0]])
-    chosen: dict[str, float] = {}
+def leave_one_verb_out(per_weights: dict[Weights, dict[str, float]]) -> dict[str, Any]:
+    """Choose the weights on all units but one, score the held-out unit; see the module docstring."""
+    grid = sorted(per_weights)
+    units = sorted(per_weights[grid[0]])
+    chosen: dict[str, Weights] = {}
     for held in units:
-        def train(g: float, held: str = held) -> tuple[float, bool, float]:
-            rest = [per_gamma[g][u] for u in units if u != held]
-            return sum(rest) / len(rest), g == PAPER_GAMMA, g
-        chosen[held] = max(gammas, key=train)
-    held_out = sum(per_gamma[chosen[u]][u] for u in units) / len(units)
-    # how much one unit decides: the unit whose score moves most with gamma, and the fixed-gamma
-    # means without it
-    swing = max(units, key=lambda u: max(per_gamma[g][u] for g in gammas) - min(per_gamma[g][u] for g in gammas))
+        def train(w: Weights, held: str = held) -> tuple[float, bool, Weights]:
+            rest = [per_weights[w][u] for u in units if u != held]
+            return sum(rest) / len(rest), w == PAPER_WEIGHTS, w
+        chosen[held] = max(grid, key=train)
+    held_out = sum(per_weights[chosen[u]][u] for u in units) / len(units)
+    # how much one unit decides: the unit whose score moves most with the weights, and the
+    # fixed-weight means without it
+    swing = max(units, key=lambda u: max(per_weights[w][u] for w in grid) - min(per_weights[w][u] for w in grid))
     return {"units": len(units), "chosen": chosen, "held_out_mean": held_out,
-            "fixed_mean": {g: sum(per_gamma[g].values()) / len(units) for g in gammas},
-            "largest_swing": {"unit": swing, "scores": {g: per_gamma[g][swing] for g in gammas},
-                              "fixed_mean_without": {g: sum(per_gamma[g][u] for u in units if u != swing)
-                                                     / max(1, len(units) - 1) for g in gammas}}}
+            "fixed_mean": {w: sum(per_weights[w].values()) / len(units) for w in grid},
+            "largest_swing": {"unit": swing, "scores": {w: per_weights[w][swing] for w in grid},
+                              "fixed_mean_without": {w: sum(per_weights[w][u] for u in units if u != swing)
+                                                     / max(1, len(units) - 1) for w in grid}}}
+
+
+def lvo_as_json(entry: dict[str, Any]) -> dict[str, Any]:
+    """``leave_one_verb_out``'s result with its weight pairs written as strings (JSON keys)."""
+    swing = entry["largest_swing"]
+    return {"units": entry["units"], "held_out_mean": entry["held_out_mean"],
+            "chosen": {u: list(w) for u, w in entry["chosen"].items()},
+            "fixed_mean": {_key(w): m for w, m in entry["fixed_mean"].items()},
+            "largest_swing": {"unit": swing["unit"], "scores": {_key(w): s for w, s in swing["scores"].items()},
+                              "fixed_mean_without": {_key(w): m for w, m in swing["fixed_mean_without"].items()}}}
 
 
 def _bundle_name(name: str) -> str:
@@ -94,65 +115,71 @@ def _bundle_name(name: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--gammas", type=number_list, default="0,0.1,0.25,0.5,1")
+    parser.add_argument("--betas", type=number_list, default="1,1.5,2,3")
+    parser.add_argument("--gammas", type=number_list, default="0.5,1")
     parser.add_argument("--kb", action="append", type=_bundle_name, default=None,
                         help="bundle names under artifacts/kb "
                         "(default: craft-e-default, direct-llm)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--no-static", action="store_true")
-    parser.add_argument("--static-labels", type=Path, default=SIM_DEV_LABELS,
-                        help="labels of the rendered scenes (default: sim-dev; artifacts/labels/sim_val_labels.csv "
-                        "measures on the verbs no default was chosen on)")
+    parser.add_argument("--static-labels", type=Path, action="append", default=None,
+                        help="labels of the rendered scenes, repeatable (default: sim-dev and "
+                        "artifacts/labels/sim_val_labels.csv)")
     parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("--markdown", type=output_file, default=None)
     args = parser.parse_args()
-    if not args.no_static and not args.static_labels.is_file():
-        parser.error(f"--static-labels {args.static_labels}: no such labels file")
-    gammas: list[float] = args.gammas
+    static_labels: list[Path] = [] if args.no_static else (args.static_labels or [SIM_DEV_LABELS, SIM_VAL_LABELS])
+    for labels in static_labels:
+        if not labels.is_file():
+            parser.error(f"--static-labels {labels}: no such labels file")
+    grid: list[Weights] = [(b, g) for b in args.betas for g in args.gammas]
     kbs = args.kb or ["craft-e-default", "direct-llm"]
-    specs = [MethodSpec(_row(kb, g), f"{kb}, beta 1, gamma {g:g}", KB_DIR / kb, beta=1.0, gamma=g)
-             for kb in kbs for g in gammas]
+    specs = [MethodSpec(_row(kb, w), f"{kb}, beta {w[0]:g}, gamma {w[1]:g}", KB_DIR / kb, beta=w[0], gamma=w[1])
+             for kb in kbs for w in grid]
 
     columns: dict[str, dict[str, dict[str, float]]] = {"imagenet": imagenet_scores(specs, args.threads)}
-    if not args.no_static:
-        columns |= {f"static_{c}": s for c, s in static_scores(specs, args.jobs, args.static_labels).items()}
+    for labels in static_labels:
+        columns |= {f"static_{c}:{labels.stem}": s for c, s in static_scores(specs, args.jobs, labels).items()}
+    selection_columns = ["imagenet"] + [c for c in columns if c.startswith("static_full:")]
     lvo = {}
     for kb in kbs:
-        # one unit per (protocol, verb): the ImageNet verbs and the static full pipeline's verbs
-        units = {g: {f"{col}:{v}": s for col in ("imagenet", "static_full") if col in columns
-                     for v, s in columns[col][_row(kb, g)].items()} for g in gammas}
+        # one unit per (protocol, verb): the ImageNet verbs and each labels file's full-pipeline verbs
+        units = {w: {f"{col}:{v}": s for col in selection_columns
+                     for v, s in columns[col][_row(kb, w)].items()} for w in grid}
         lvo[kb] = leave_one_verb_out(units)
 
-    lines = ["| KB | gamma | " + " | ".join(columns) + " |", "|---|---:|" + "---:|" * len(columns)]
+    lines = ["| KB | beta | gamma | " + " | ".join(columns) + " |", "|---|---:|---:|" + "---:|" * len(columns)]
     for kb in kbs:
-        for g in gammas:
-            means = [sum(columns[c][_row(kb, g)].values()) / len(columns[c][_row(kb, g)]) for c in columns]
-            lines.append(f"| {kb} | {g:g} | " + " | ".join(f"{100 * m:.1f}" for m in means) + " |")
+        for w in grid:
+            means = [sum(columns[c][_row(kb, w)].values()) / len(columns[c][_row(kb, w)]) for c in columns]
+            lines.append(f"| {kb} | {w[0]:g} | {w[1]:g} | " + " | ".join(f"{100 * m:.1f}" for m in means) + " |")
     lines.append("")
     for kb, entry in lvo.items():
-        counts = {g: sum(1 for c in entry["chosen"].values() if c == g) for g in gammas}
+        counts = {w: sum(1 for c in entry["chosen"].values() if c == w) for w in grid}
         lines.append(f"- {kb}: leave-one-verb-out over {entry['units']} units, held-out mean "
-                     f"{100 * entry['held_out_mean']:.1f} (gamma fixed at 1: "
-                     f"{100 * entry['fixed_mean'][PAPER_GAMMA]:.1f}; at 0: {100 * entry['fixed_mean'].get(0.0, float('nan')):.1f}); "
-                     "gamma chosen " + ", ".join(f"{g:g}: {n}x" for g, n in counts.items() if n))
+                     f"{100 * entry['held_out_mean']:.1f} (the paper's weights fixed: "
+                     f"{100 * entry['fixed_mean'].get(PAPER_WEIGHTS, float('nan')):.1f}); chosen "
+                     + ", ".join(f"({w[0]:g}, {w[1]:g}): {n}x" for w, n in counts.items() if n))
         swing = entry["largest_swing"]
-        lines.append(f"  - the unit gamma moves most: {swing['unit']} ("
-                     + ", ".join(f"{g:g}: {100 * v:.0f}" for g, v in swing["scores"].items())
-                     + "); without it, the mean at each fixed gamma: "
-                     + ", ".join(f"{g:g}: {100 * v:.1f}" for g, v in swing["fixed_mean_without"].items()))
+        lines.append(f"  - the unit the weights move most: {swing['unit']} ("
+                     + ", ".join(f"({w[0]:g}, {w[1]:g}): {100 * v:.0f}" for w, v in swing["scores"].items())
+                     + "); without it, the mean at each fixed (beta, gamma): "
+                     + ", ".join(f"({w[0]:g}, {w[1]:g}): {100 * v:.1f}" for w, v in swing["fixed_mean_without"].items()))
     table = "\n".join(lines)
     print(table)
-    n_static = len(next(iter(columns["static_full"].values()))) if "static_full" in columns else 0
     if args.markdown is not None:
+        files = ", ".join(f"`{p.name}`" for p in static_labels) or "none"
         args.markdown.write_text(
-            "### E_align weight (gamma) on the dev labels (`benchmarks/bench_energy_weights.py`)\n\n"
-            "Mean over verbs of: ImageNet dev single-affordance top-1 (6 verbs); rendered scenes' "
-            f"accuracy (labels `{args.static_labels.name}`, {n_static} verbs) with GR-ConvNet + predicted "
-            "ROIs (`static_full`) and with GT grasps + GT ROIs (`static_gt`). Percent.\n\n"
+            "### Energy weights (beta for E_aff, gamma for E_align) on the dev labels "
+            "(`benchmarks/bench_energy_weights.py`)\n\n"
+            "Mean over verbs of: ImageNet dev single-affordance top-1 (6 verbs, alpha = 0); each rendered-scene "
+            f"labels file's accuracy ({files}) with GR-ConvNet + predicted ROIs (`static_full`) and with GT "
+            "grasps + GT ROIs (`static_gt`). Percent. Alpha (E_grasp) is 1 on the rendered scenes.\n\n"
             + table + "\n", encoding="utf-8")
     if args.json is not None:
-        args.json.write_text(json.dumps({"gammas": gammas, "per_verb": columns, "leave_one_verb_out": lvo},
+        args.json.write_text(json.dumps({"weights": [list(w) for w in grid], "per_verb": columns,
+                                         "leave_one_verb_out": {kb: lvo_as_json(e) for kb, e in lvo.items()}},
                                         indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 

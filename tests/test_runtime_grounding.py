@@ -37,7 +37,8 @@ def test_energies_of_one_roi_by_hand(runtime_kbs: RuntimeKBs) -> None:
     assert r.e_grasp == pytest.approx(-math.log(0.8), abs=1e-6)
     assert r.e_aff == pytest.approx(e_aff, abs=1e-5)
     assert r.e_align == pytest.approx(e_align, abs=1e-5)
-    assert r.total == pytest.approx(r.e_grasp + r.e_aff + r.e_align, abs=1e-5)
+    # the default weights (alpha 1, beta 3, gamma 0.5: grounding/settings.py)
+    assert r.total == pytest.approx(1.0 * r.e_grasp + 3.0 * r.e_aff + 0.5 * r.e_align, abs=1e-5)
     assert r.grasp_index == 1 and r.hypotheses[0].name == "hatchet"
     assert {p.prop for p in r.paths} >= {"sharp edge", "has a blade"}
     assert all(p.provenance for p in r.paths)

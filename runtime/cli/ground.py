@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from ..grounding.settings import DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_GAMMA
 from .common import (
     AffModeOpt,
     EnergyFormOpt,
@@ -90,9 +91,9 @@ def ground(
                                                         callback=checked_plot_file)] = None,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the grounding as JSON.",
                                                                       callback=checked_output_file)] = None,
-    alpha: Annotated[float, typer.Option(help="Weight of E_grasp.")] = 1.0,
-    beta: Annotated[float, typer.Option(help="Weight of E_aff.")] = 1.0,
-    gamma: Annotated[float, typer.Option(help="Weight of E_align.")] = 1.0,
+    alpha: Annotated[float, typer.Option(help="Weight of E_grasp.")] = DEFAULT_ALPHA,
+    beta: Annotated[float, typer.Option(help="Weight of E_aff (the paper: 1; docs/energy_weights.md).")] = DEFAULT_BETA,
+    gamma: Annotated[float, typer.Option(help="Weight of E_align (the paper: 1; docs/energy_weights.md).")] = DEFAULT_GAMMA,
     temperature: TemperatureOpt = None,
     aff_mode: AffModeOpt = "expected",
     energy_form: EnergyFormOpt = None,

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...paths import KB_DIR
-from ..grounding.settings import GroundingSettings
+from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, GroundingSettings
 from .common import SkippedMethod
 
 if TYPE_CHECKING:
@@ -32,8 +32,8 @@ class MethodSpec:
     name: str
     description: str
     bundle: Path
-    beta: float = 1.0
-    gamma: float = 1.0
+    beta: float = DEFAULT_BETA
+    gamma: float = DEFAULT_GAMMA
 
 
 def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR) -> list[MethodSpec]:
@@ -43,8 +43,8 @@ def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR) -> list[Metho
         MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e),
         MethodSpec("CRAFT", "ConceptNet-derived KB + visual alignment", kb_dir / "conceptnet"),
         MethodSpec("direct-LLM", "verb -> objects ranked directly by the LLM (+ alignment)", kb_dir / "direct-llm"),
-        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0, gamma=1.0),
-        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, beta=1.0, gamma=0.0),
+        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0),
+        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, gamma=0.0),
     ]
 
 

@@ -1,4 +1,4 @@
-"""The paper's energies (eq. 1-5). Lower is better; alpha = beta = gamma = 1 by default.
+"""The paper's energies (eq. 1-5). Lower is better; their weights are ``GroundingSettings``'.
 
 ``E_aff(v, o)`` comes in several forms, all computed from ``w_vp [V, P]``, ``w_po [P, O]`` and
 the threshold ``tau`` (``P_v(o)`` = properties of v with ``w_po >= tau``):

@@ -101,8 +101,8 @@ _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class GroundOptions(BaseModel):
-    """Per-request settings; anything left out uses the server's (the paper's alpha = beta =
-    gamma = 1, the bundle's energy form)."""
+    """Per-request settings; anything left out uses the server's (by default alpha = 1, beta = 3,
+    gamma = 0.5, ``grounding/settings.py``, and the bundle's energy form)."""
 
     model_config = _STRICT
 
