@@ -104,6 +104,33 @@ def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
     assert "| CRAFT | skipped" in md.read_text()
 
 
+@pytest.mark.parametrize(("flags", "weights"), [
+    ([], {"CRAFT-E": (3.0, 0.5), "alignment-only": (0.0, 0.5), "affordance-only": (3.0, 0.0)}),
+    (["--beta", "1", "--gamma", "1"], {"CRAFT-E": (1.0, 1.0), "alignment-only": (0.0, 1.0), "affordance-only": (1.0, 0.0)}),
+])
+def test_eval_weights_reach_every_method(runtime_kbs: RuntimeKBs, tmp_path: Path, flags: list[str],
+                                         weights: dict[str, tuple[float, float]]) -> None:
+    """``--beta/--gamma`` (the paper's 1 / 1) replace the default weights of every method; each
+    single-term ablation keeps its one term off."""
+    out = tmp_path / "r.json"
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"]}))
+    (tmp_path / "none").mkdir()
+    result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
+                                 "--kb-dir", str(tmp_path / "none"), "--episodes", "3", "--json", str(out),
+                                 "--no-cache", "--threads", "1", "--classes", str(RUNTIME_KB / "objects.txt"),
+                                 *flags])
+    assert result.exit_code == 0, result.output
+    settings = {name: m["settings"] for name, m in json.loads(out.read_text())["methods"].items() if name in weights}
+    assert {name: (s["beta"], s["gamma"]) for name, s in settings.items()} == weights
+
+
+@pytest.mark.parametrize("command", [["eval", "sim"], ["eval", "static"], ["eval", "imagenet"], ["sim", "demo"]])
+def test_a_negative_weight_is_a_usage_error(command: list[str]) -> None:
+    result = runner.invoke(app, [*command, "--beta", "-1"])
+    assert result.exit_code == 2 and "Invalid value for '--beta'" in result.output
+
+
 def _commands(group: typer.Typer) -> set[str]:
     names = {c.name or (c.callback.__name__ if c.callback else "") for c in group.registered_commands}
     return names | {f"{g.name}/{n}" for g in group.registered_groups if g.typer_instance

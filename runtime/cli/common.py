@@ -115,6 +115,8 @@ JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as J
 MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_output_file)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
+BetaOpt = Annotated[float | None, typer.Option(min=0.0, help="Weight of E_aff (default 3; the paper's is 1: docs/energy_weights.md).")]
+GammaOpt = Annotated[float | None, typer.Option(min=0.0, help="Weight of E_align (default 0.5; the paper's is 1: docs/energy_weights.md).")]
 EnergyFormOpt = Annotated[str | None, typer.Option(help=f"E_aff form: {_FORMS} (default: each bundle's).")]
 ThreadsOpt = Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")]
 NoCacheOpt = Annotated[bool, typer.Option("--no-cache", help="Do not read or write the on-disk image-embedding cache.")]

@@ -95,15 +95,17 @@ def check_labels(path: Path) -> None:
         fail(str(exc))
 
 
-def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | None) -> list[MethodSpec]:
-    """``--methods``/``--kb``/``--kb-dir`` as method specs, or exit 2 naming the bad one."""
+def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | None,
+                  beta: float | None = None, gamma: float | None = None) -> list[MethodSpec]:
+    """``--methods``/``--kb``/``--kb-dir``/``--beta``/``--gamma`` as method specs, or exit 2
+    naming the bad one."""
     from ...paths import KB_DIR
     from ..evaluation.methods import select_methods
     from .common import check_named_bundles
 
     check_named_bundles(kb, kb_dir)
     try:
-        return select_methods(split_names(methods), kb, kb_dir or KB_DIR)
+        return select_methods(split_names(methods), kb, kb_dir or KB_DIR, beta=beta, gamma=gamma)
     except ValueError as exc:
         fail(str(exc))
 

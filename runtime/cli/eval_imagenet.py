@@ -9,7 +9,9 @@ import typer
 
 from .common import (
     AffModeOpt,
+    BetaOpt,
     EnergyFormOpt,
+    GammaOpt,
     JsonOpt,
     KbDirOpt,
     MarkdownOpt,
@@ -32,6 +34,8 @@ def eval_imagenet(
     kb_dir: KbDirOpt = None,
     temperature: TemperatureOpt = None,
     aff_mode: AffModeOpt = "expected",
+    beta: BetaOpt = None,
+    gamma: GammaOpt = None,
     energy_form: EnergyFormOpt = None,
     no_cache: NoCacheOpt = False,
     threads: ThreadsOpt = None,
@@ -42,7 +46,8 @@ def eval_imagenet(
     from ..evaluation.common import emit_report
     from ..evaluation.imagenet import LabelsError, evaluate_imagenet
 
-    given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form)
+    given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
+                            beta, gamma)
     try:
         report = evaluate_imagenet(labels, methods=given.methods, episodes=episodes, seed=seed, pool=given.pool,
                                    cache_dir=given.cache_dir, settings=given.settings, threads=threads)

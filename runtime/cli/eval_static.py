@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from . import episodes as ep
-from .common import AffModeOpt, EnergyFormOpt, fail, grounding_settings
+from .common import AffModeOpt, BetaOpt, EnergyFormOpt, GammaOpt, fail, grounding_settings
 
 
 def eval_static(
@@ -29,6 +29,8 @@ def eval_static(
     threads: ep.SceneThreadsOpt = 1,
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",
+    beta: BetaOpt = None,
+    gamma: GammaOpt = None,
     jobs: ep.JobsOpt = 1,
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
@@ -45,7 +47,7 @@ def eval_static(
         levels = [parse_noise(n) for n in noise or []]
     except ValueError as exc:
         fail(str(exc))
-    specs = ep.scene_methods(methods, kb, kb_dir)
+    specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels_path)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
                                   colour_cue=colour_cue)

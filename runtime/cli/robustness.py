@@ -14,7 +14,9 @@ import typer
 
 from .common import (
     AffModeOpt,
+    BetaOpt,
     EnergyFormOpt,
+    GammaOpt,
     JsonOpt,
     KbDirOpt,
     NoCacheOpt,
@@ -48,6 +50,8 @@ def robustness_imagenet(
     threads: ThreadsOpt = None,
     temperature: TemperatureOpt = None,
     aff_mode: AffModeOpt = "expected",
+    beta: BetaOpt = None,
+    gamma: GammaOpt = None,
     energy_form: EnergyFormOpt = None,
 ) -> None:
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
@@ -55,7 +59,8 @@ def robustness_imagenet(
     from ..evaluation.imagenet import LabelsError
     from ..evaluation.robustness import DEFAULT_LEVELS, evaluate_robustness, parse_levels
 
-    given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form)
+    given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
+                            beta, gamma)
     try:
         chosen = parse_levels(levels) if levels else DEFAULT_LEVELS
     except ValueError as exc:

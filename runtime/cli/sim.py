@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from . import episodes as ep
-from .common import checked_output_folder
+from .common import BetaOpt, GammaOpt, checked_output_folder
 
 if TYPE_CHECKING:
     from ..evaluation.sim_eval import EpisodeSpec, LabelPair, SimLabels
@@ -43,6 +43,8 @@ def demo(
     retries: ep.RetriesOpt = 0,
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
+    beta: BetaOpt = None,
+    gamma: GammaOpt = None,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
@@ -56,7 +58,7 @@ def demo(
         make_episode_specs,
     )
     from ..grounding.grounder import normalize_verb_name
-    from ..grounding.settings import GroundingSettings
+    from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, GroundingSettings
     from ..grounding.size_cue import CueUnavailableError
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.env import SimEnv
@@ -103,9 +105,10 @@ def demo(
     method = bundle.manifest.kb_name
     encoder = default_encoder(threads)
     try:
-        grounders = build_grounders([(MethodSpec(method, "demo", bundle_path), bundle)],
-                                    GroundingSettings(size_cue=size_cue,
-                                  colour_cue=colour_cue), sim_vocabulary())
+        spec_m = MethodSpec(method, "demo", bundle_path, beta=DEFAULT_BETA if beta is None else beta,
+                            gamma=DEFAULT_GAMMA if gamma is None else gamma)
+        grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue),
+                                    sim_vocabulary())
     except CueUnavailableError as exc:
         fail(str(exc))
     err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "

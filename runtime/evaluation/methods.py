@@ -36,23 +36,29 @@ class MethodSpec:
     gamma: float = DEFAULT_GAMMA
 
 
-def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR) -> list[MethodSpec]:
-    """CRAFT-E, CRAFT (ConceptNet KB), direct-LLM, and the two single-term ablations."""
+def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR, *,
+                    beta: float | None = None, gamma: float | None = None) -> list[MethodSpec]:
+    """CRAFT-E, CRAFT (ConceptNet KB), direct-LLM, and the two single-term ablations, at the
+    weights ``beta``/``gamma`` (``None``: the defaults); each ablation keeps its one term's."""
+    b = DEFAULT_BETA if beta is None else beta
+    g = DEFAULT_GAMMA if gamma is None else gamma
     craft_e = kb or kb_dir / "craft-e-default"
     return [
-        MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e),
-        MethodSpec("CRAFT", "ConceptNet-derived KB + visual alignment", kb_dir / "conceptnet"),
-        MethodSpec("direct-LLM", "verb -> objects ranked directly by the LLM (+ alignment)", kb_dir / "direct-llm"),
-        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0),
-        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, gamma=0.0),
+        MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e, beta=b, gamma=g),
+        MethodSpec("CRAFT", "ConceptNet-derived KB + visual alignment", kb_dir / "conceptnet", beta=b, gamma=g),
+        MethodSpec("direct-LLM", "verb -> objects ranked directly by the LLM (+ alignment)", kb_dir / "direct-llm",
+                   beta=b, gamma=g),
+        MethodSpec("alignment-only", "CRAFT-E with gamma only (no KB)", craft_e, beta=0.0, gamma=g),
+        MethodSpec("affordance-only", "CRAFT-E with beta only (no alignment)", craft_e, beta=b, gamma=0.0),
     ]
 
 
 def select_methods(
-    names: Sequence[str] | None = None, kb: Path | None = None, kb_dir: Path = KB_DIR
+    names: Sequence[str] | None = None, kb: Path | None = None, kb_dir: Path = KB_DIR, *,
+    beta: float | None = None, gamma: float | None = None,
 ) -> list[MethodSpec]:
     """The named methods of :func:`default_methods` (default: the paper's four rows)."""
-    specs = {m.name: m for m in default_methods(kb, kb_dir)}
+    specs = {m.name: m for m in default_methods(kb, kb_dir, beta=beta, gamma=gamma)}
     wanted = list(names) if names else list(SIM_METHODS)
     unknown = [n for n in wanted if n not in specs]
     if unknown:
