@@ -20,7 +20,7 @@ The withheld benchmark labels are never read. The default grid is the one the sh
 (beta 3, gamma 0.5, ``grounding/settings.py``) was chosen from.
 
 Run: ``.venv/bin/python benchmarks/bench_energy_weights.py [--jobs 2] --json OUT --markdown OUT``
-(~30 min on 2 cores; ``--no-static`` runs the ImageNet part alone in ~30 s).
+(~15 min on 2 cores; ``--no-static`` runs the ImageNet part alone in ~30 s).
 """
 
 from __future__ import annotations
