@@ -125,10 +125,11 @@ def test_eval_weights_reach_every_method(runtime_kbs: RuntimeKBs, tmp_path: Path
     assert {name: (s["beta"], s["gamma"]) for name, s in settings.items()} == weights
 
 
+@pytest.mark.parametrize("weight", [["--beta", "-1"], ["--beta", "inf"], ["--gamma", "inf"]])
 @pytest.mark.parametrize("command", [["eval", "sim"], ["eval", "static"], ["eval", "imagenet"], ["sim", "demo"]])
-def test_a_negative_weight_is_a_usage_error(command: list[str]) -> None:
-    result = runner.invoke(app, [*command, "--beta", "-1"])
-    assert result.exit_code == 2 and "Invalid value for '--beta'" in result.output
+def test_a_negative_or_infinite_weight_is_a_usage_error(command: list[str], weight: list[str]) -> None:
+    result = runner.invoke(app, [*command, *weight])
+    assert result.exit_code == 2 and f"Invalid value for '{weight[0]}'" in result.output
 
 
 def _commands(group: typer.Typer) -> set[str]:

@@ -8,6 +8,7 @@ Exit codes (both CLIs): 0 ok; 1 a check failed (verification commands); 2 bad in
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -85,6 +86,14 @@ def checked_output_file(value: Path | None) -> Path | None:
     return value
 
 
+def checked_weight(value: float | None) -> float | None:
+    """typer callback of an energy weight: finite (``inf`` times an energy of 0 is NaN, which
+    ranks every ROI as NaN; ``craft ground`` rejects it through ``GroundingSettings`` too)."""
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"{value} is not a finite number; give a weight >= 0, e.g. 1")
+    return value
+
+
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
@@ -115,8 +124,8 @@ JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as J
 MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_output_file)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
-BetaOpt = Annotated[float | None, typer.Option(min=0.0, help="Weight of E_aff (default 3; the paper's is 1: docs/energy_weights.md).")]
-GammaOpt = Annotated[float | None, typer.Option(min=0.0, help="Weight of E_align (default 0.5; the paper's is 1: docs/energy_weights.md).")]
+BetaOpt = Annotated[float | None, typer.Option(min=0.0, callback=checked_weight, help="Weight of E_aff (default 3; the paper's is 1: docs/energy_weights.md).")]
+GammaOpt = Annotated[float | None, typer.Option(min=0.0, callback=checked_weight, help="Weight of E_align (default 0.5; the paper's is 1: docs/energy_weights.md).")]
 EnergyFormOpt = Annotated[str | None, typer.Option(help=f"E_aff form: {_FORMS} (default: each bundle's).")]
 ThreadsOpt = Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder.")]
 NoCacheOpt = Annotated[bool, typer.Option("--no-cache", help="Do not read or write the on-disk image-embedding cache.")]
