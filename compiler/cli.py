@@ -632,7 +632,8 @@ def curate_record(
     prompt: Annotated[
         str,
         typer.Option(
-            help="verb_properties | object_properties | property_objects | verb_objects | object_size | object_colour"
+            help="verb_properties | object_properties | property_objects | verb_objects | object_size | "
+            "object_colour | object_lookalike"
         ),
     ],
     answers: Annotated[Path, typer.Option(help="JSONL file: one answer payload per line.")],
@@ -689,7 +690,8 @@ def curate_pending(
         typer.Option(
             help="object_properties (stage 2) | property_objects (stage 2b) | verb_objects "
             "(direct) | verb_properties (stage 1) | object_size (typical sizes, for perception) | "
-            "object_colour (typical colours, for perception)."
+            "object_colour (typical colours, for perception) | object_lookalike (the ImageNet classes "
+            "photos of an object get, for perception)."
         ),
     ] = "object_properties",
 ) -> None:
@@ -699,6 +701,7 @@ def curate_pending(
     from .curate import (
         pending_colour_requests,
         pending_direct_requests,
+        pending_lookalike_requests,
         pending_object_requests,
         pending_property_requests,
         pending_size_requests,
@@ -717,6 +720,7 @@ def curate_pending(
             "verb_properties": pending_verb_requests,
             "object_size": pending_size_requests,
             "object_colour": pending_colour_requests,
+            "object_lookalike": pending_lookalike_requests,
         }
         if prompt not in listers:
             fail(f"unknown prompt {prompt!r}; choose one of {', '.join(listers)}")

@@ -19,6 +19,7 @@ from pydantic import ValidationError
 from ..schemas.names import normalize_name, normalize_property, normalize_verb
 from ..schemas.v1.payloads import (
     ObjectColour,
+    ObjectLookalikes,
     ObjectProperties,
     ObjectSize,
     PropertyObjects,
@@ -37,19 +38,35 @@ from .llm_knowledge import (
 )
 from .object_colours import PROMPT_ID as COLOUR_PROMPT_ID
 from .object_sizes import PROMPT_ID as SIZE_PROMPT_ID
-from .per_object_prompts import pending_object_calls
+from .per_object_prompts import LOOKALIKE_PROMPT_ID, pending_object_calls
 from .prompts import DEFAULT_PROMPT_VERSION
 from .sources.llm import LLM_SOURCE, LLMSource, PromptCall
 
 #: Prompts asked once per object (perception knowledge) and the payload each answer must fit.
-PER_OBJECT_PROMPTS: dict[str, type[ObjectSize] | type[ObjectColour]] = {
+PER_OBJECT_PROMPTS: dict[str, type[ObjectSize] | type[ObjectColour] | type[ObjectLookalikes]] = {
     SIZE_PROMPT_ID: ObjectSize,
     COLOUR_PROMPT_ID: ObjectColour,
+    LOOKALIKE_PROMPT_ID: ObjectLookalikes,
 }
 
 
 class CurationError(ValueError):
     """An answers file is malformed; the message names the file, the line and the fix."""
+
+
+def _check_classes(answer: ObjectLookalikes, where: str) -> None:
+    """Every class an ``object_lookalike`` answer names must be one the classifier can output."""
+    import difflib
+
+    from ..runtime.encoders.conse import imagenet_class_names
+
+    known = imagenet_class_names()
+    for entry in answer.classes:
+        if entry.imagenet_class not in known:
+            close = difflib.get_close_matches(entry.imagenet_class, known, n=3, cutoff=0.6)
+            hint = f"did you mean {', '.join(repr(c) for c in close)}?" if close else (
+                "write a name exactly as in runtime/encoders/imagenet_classes.txt")
+            raise CurationError(f"{where}: {entry.imagenet_class!r} is not an ImageNet-1k class name; {hint}")
 
 
 @dataclass
@@ -235,6 +252,8 @@ def record_answers(
                     )
             elif prompt_id in PER_OBJECT_PROMPTS:
                 answer = PER_OBJECT_PROMPTS[prompt_id].model_validate(row)
+                if isinstance(answer, ObjectLookalikes):
+                    _check_classes(answer, where)
                 payload = answer.model_dump(mode="json")
                 obj = normalize_name(str(answer.object), singularize=False)
                 if obj not in known_objects and normalize_name(obj) not in known_objects:
@@ -435,3 +454,4 @@ def _per_object_lister(prompt_id: str, what: str) -> Callable[..., list[dict[str
 
 pending_size_requests = _per_object_lister(SIZE_PROMPT_ID, "Size")
 pending_colour_requests = _per_object_lister(COLOUR_PROMPT_ID, "Colour")
+pending_lookalike_requests = _per_object_lister(LOOKALIKE_PROMPT_ID, "Look-alike")

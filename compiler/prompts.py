@@ -22,6 +22,7 @@ from pydantic import BaseModel
 
 from ..schemas.v1.payloads import (
     ObjectColour,
+    ObjectLookalikes,
     ObjectProperties,
     ObjectSize,
     PropertyObjects,
@@ -41,6 +42,7 @@ PAYLOADS: dict[str, type[BaseModel]] = {
     "property_objects": PropertyObjects,
     "object_size": ObjectSize,
     "object_colour": ObjectColour,
+    "object_lookalike": ObjectLookalikes,
 }
 #: Payload models whose shape changed with a prompt version (``<id>@<version>``).
 VERSIONED_PAYLOADS: dict[str, type[BaseModel]] = {
@@ -59,6 +61,7 @@ DEFAULT_VERSIONS = {
     "property_objects": "v1",
     "object_size": "v1",
     "object_colour": "v1",
+    "object_lookalike": "v1",
 }
 _SECTION = re.compile(r"^## (system|user)\s*$", re.MULTILINE)
 

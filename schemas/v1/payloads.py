@@ -209,3 +209,39 @@ class ObjectColour(_Strict):
         if total > 1.0 + 1e-6:
             raise ValueError(f"the shares add up to {total:g}; they must add up to 1 or less")
         return value
+
+
+class ClassShare(_Strict):
+    """One ImageNet-1k class an image classifier gives photos of an object, and its expected share."""
+
+    imagenet_class: Annotated[str, Field(min_length=1, max_length=80)]
+    share: Annotated[float, Field(gt=0.0, le=1.0)]
+
+
+class ObjectLookalikes(_Strict):
+    """Perception knowledge: the ImageNet-1k classes photos of a typical ``object`` get (prompt
+    ``object_lookalike``).
+
+    The robot's image recogniser only knows the ImageNet-1k label space, and where that space has
+    no class for an object it answers with a class of something that looks alike (a stapler may
+    come back as a "computer mouse"). ConSE maps the answer to the nearest vocabulary name by
+    *text* similarity, which lands on the wrong name whenever the look-alike's name means
+    something else. ``classes``: one to five class names, written exactly as in the classifier's
+    list (``craftc curate record`` checks them), each with the share of photos expected to get it
+    (they add up to 1 or less).
+    """
+
+    object: Phrase
+    classes: list[ClassShare] = Field(min_length=1, max_length=5)
+    note: Annotated[str, Field(max_length=240)] = ""
+
+    @field_validator("classes")
+    @classmethod
+    def _distinct_and_at_most_whole(cls, value: list[ClassShare]) -> list[ClassShare]:
+        names = [c.imagenet_class for c in value]
+        if len(set(names)) != len(names):
+            raise ValueError(f"each class may appear once, got {names}")
+        total = sum(c.share for c in value)
+        if total > 1.0 + 1e-6:
+            raise ValueError(f"the shares add up to {total:g}; they must add up to 1 or less")
+        return value
