@@ -54,6 +54,7 @@ from .llm_knowledge import (
     llm_property_draft,
 )
 from .object_colours import colours_json, recorded_colours
+from .object_lookalikes import lookalikes_json, recorded_lookalikes
 from .object_sizes import recorded_sizes, sizes_json
 from .prompts import DEFAULT_PROMPT_VERSION
 from .rdf import graph_turtle
@@ -251,7 +252,7 @@ def build(
     # issue 11: the model that infers unseen objects' properties, fitted on this KB's objects
     from safetensors.numpy import load as load_safetensors
 
-    _phase(progress, "open-world fit, sizes, colours")
+    _phase(progress, "open-world fit, sizes, colours, look-alikes")
     open_world = fit_open_world(load_safetensors(embeddings_blob)["object"], w_po, tau=config.tau)
     # perception knowledge: the objects' typical sizes, where a record gives one (never asked for)
     perception_source = LLMSource(cache=cache, provider=config.provider, model=config.model)
@@ -259,6 +260,8 @@ def build(
     draft.count("object_sizes", "objects with a typical size", len(sizes))
     colours = recorded_colours(perception_source, draft.objects, objects.glosses)
     draft.count("object_colours", "objects with typical colours", len(colours))
+    lookalikes = recorded_lookalikes(perception_source, draft.objects, objects.glosses)
+    draft.count("object_lookalikes", "objects with ImageNet look-alike classes", len(lookalikes))
     report = BundleReport(
         kb_name=config.name,
         counts={
@@ -288,6 +291,7 @@ def build(
         "open_world.json": open_world_json(open_world),
         "object_sizes.json": sizes_json(sizes, config.provider, config.model),
         "object_colours.json": colours_json(colours, config.provider, config.model),
+        "object_lookalikes.json": lookalikes_json(lookalikes, config.provider, config.model),
     }
     digests = {name: file_digest(data) for name, data in files.items()}
     manifest = Manifest(

@@ -4,7 +4,7 @@ A record is *referenced* when
 
 * a bundle under the bundle roots (by default every shipped bundle, ``artifacts/kb/*``) names
   its key in ``graph.json`` provenance or in its perception knowledge (``object_sizes.json``,
-  ``object_colours.json``: a rebuild looks those records up and silently ships fewer sizes
+  ``object_colours.json``, ``object_lookalikes.json``: a rebuild looks those records up and silently ships fewer sizes
   without them), or the record asks the same prompt@version about the
   same subject for the same provider and model as one that is named (a *sibling*: the planners
   may need it to cover that subject, e.g. a stage-2b answer over objects that gained no edge,
@@ -13,7 +13,7 @@ A record is *referenced* when
   ``fetch_many`` returns, every record the stage-2 / 2b / direct planners count as covering an
   object, property or verb (a covering record that added no edge is still needed: without it
   the planner would ask a new prompt, and replay would fail), every key in the draft's
-  provenance, and every size and colour record the build looks up.
+  provenance, and every size, colour and look-alike record the build looks up.
 
 Only the ``llm`` source folder is cleaned; other record sources and cached embeddings are left
 as they are.
@@ -40,6 +40,7 @@ from .llm_knowledge import (
     plan_property_calls,
 )
 from .object_colours import recorded_colours
+from .object_lookalikes import recorded_lookalikes
 from .object_sizes import recorded_sizes
 from .sources.llm import LLMSource, PromptCall
 from .vocab import read_vocabulary
@@ -53,7 +54,7 @@ class ReferencesError(ValueError):
 
 
 #: bundle files whose ``objects`` name the record each answer came from
-PERCEPTION_FILES = ("object_sizes.json", "object_colours.json")
+PERCEPTION_FILES = ("object_sizes.json", "object_colours.json", "object_lookalikes.json")
 
 
 def bundle_references(roots: Iterable[Path], *, strict: bool = True) -> tuple[set[str], list[Path]]:
@@ -185,10 +186,11 @@ def build_references(
             if prompt_version != "v1":
                 by_verb, _ = plan_direct_calls(source, verbs, objects, glosses, senses)
                 keys |= {r.key for records in by_verb.values() for r in records}
-    if modes:  # every build looks up the objects' sizes and colours (never asks for them)
+    if modes:  # every build looks up the objects' sizes, colours and look-alikes (never asks for them)
         perception = LLMSource(cache=cache, provider=provider, model=model)
         keys |= {s.record_key for s in recorded_sizes(perception, objects, glosses).values()}
         keys |= {c.record_key for c in recorded_colours(perception, objects, glosses).values()}
+        keys |= {a.record_key for a in recorded_lookalikes(perception, objects, glosses).values()}
     return keys | source.seen
 
 

@@ -178,6 +178,13 @@ def _colour_diff(a: Bundle, b: Bundle) -> Json:
     return {**_added_removed(a.colours, b.colours), "changed": changed}
 
 
+def _lookalike_diff(a: Bundle, b: Bundle) -> Json:
+    """Look-alike classes (``object_lookalikes.json``, the encoder's class links) added, removed or changed."""
+    changed = [{"object": n, "a": {"classes": dict(a.lookalikes[n])}, "b": {"classes": dict(b.lookalikes[n])}}
+               for n in sorted(set(a.lookalikes) & set(b.lookalikes)) if a.lookalikes[n] != b.lookalikes[n]]
+    return {**_added_removed(a.lookalikes, b.lookalikes), "changed": changed}
+
+
 def _identity(bundle: Bundle) -> Json:
     m = bundle.manifest
     return {
@@ -248,6 +255,7 @@ def diff_bundles(a: Bundle, b: Bundle, top_k: int = 5, threshold: float = 0.1) -
         "added_objects_ranked": _added_object_effects(behaviour, a, b),
         "sizes": _size_diff(a, b),
         "colours": _colour_diff(a, b),
+        "lookalikes": _lookalike_diff(a, b),
         # does E_aff discriminate? (affordant/saturated shares, hubs, margins), before and after
         "diagnostics": {"a": bundle_diagnostics(a), "b": bundle_diagnostics(b)},
     }
@@ -284,6 +292,9 @@ def _summary(result: Json) -> dict[str, int]:
     counts["colours_added"] = len(result["colours"]["added"])
     counts["colours_removed"] = len(result["colours"]["removed"])
     counts["colours_changed"] = len(result["colours"]["changed"])
+    counts["lookalikes_added"] = len(result["lookalikes"]["added"])
+    counts["lookalikes_removed"] = len(result["lookalikes"]["removed"])
+    counts["lookalikes_changed"] = len(result["lookalikes"]["changed"])
     return counts
 
 
@@ -498,6 +509,7 @@ def render_markdown(result: dict[str, Any]) -> str:
         ("never-pick pairs", "forbidden"),
         ("typical sizes (size cue)", "sizes"),
         ("typical colours (colour cue)", "colours"),
+        ("look-alike classes (encoder links)", "lookalikes"),
     ):
         out.append(f"| {label} | {s[key + '_added']} | {s[key + '_removed']} |")
     out.append("")
@@ -515,6 +527,13 @@ def render_markdown(result: dict[str, Any]) -> str:
         rows = [[_code(c["object"]), shown(c["a"]), shown(c["b"])] for c in result["colours"]["changed"]]
         out += _table(["object", "typical colours before", "after"], rows,
                       f"{len(rows)} typical colours changed")
+    if result["lookalikes"]["changed"]:
+        def classes(entry: Json) -> str:
+            return ", ".join(f"{c} {_fmt(v)}" for c, v in entry["classes"].items())
+
+        rows = [[_code(c["object"]), classes(c["a"]), classes(c["b"])] for c in result["lookalikes"]["changed"]]
+        out += _table(["object", "look-alike classes before", "after"], rows,
+                      f"{len(rows)} look-alike answers changed")
     for row in result["settings_changed"]:
         out += [
             f"⚠️ setting {_code(row['setting'])} changed: {_code(row['a'])} → {_code(row['b'])}",

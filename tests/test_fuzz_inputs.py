@@ -427,6 +427,7 @@ BUNDLE_FILE_NAMES = [
     "open_world.json",
     "object_sizes.json",
     "object_colours.json",
+    "object_lookalikes.json",
 ]
 JSON_VALUES = st.recursive(
     st.none()

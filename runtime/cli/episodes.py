@@ -59,6 +59,12 @@ ColourCueOpt = Annotated[bool | None, typer.Option(
     help="Weigh p(o|r) by how well each ROI's colours fit the objects' typical colours (the bundle's "
          "object_colours.json; grounding/colour_cue.py). Opt-in (off by default: it lowered Detect on the "
          "dev episodes, docs/recognition.md); --colour-cue requires colours for every vocabulary object.", show_default=False)]
+LookalikesOpt = Annotated[bool | None, typer.Option(
+    "--lookalikes/--no-lookalikes",
+    help="Link the image encoder's ImageNet classes to the vocabulary names whose photos get them (the "
+         "bundle's object_lookalikes.json; encoders/conse.py), so a look-alike class reads as the object it "
+         "stands for. Opt-in; --lookalikes requires look-alikes for every vocabulary object.",
+    show_default=False)]
 RelocateOpt = Annotated[bool, typer.Option(
     help="Before a pick, move the chosen grasp a few cm along its object (or turn it) when the overhead depth "
          "shows its approach blocked, keeping it when no nearby spot is clear (sim/relocate.py); "

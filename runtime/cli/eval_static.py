@@ -34,6 +34,7 @@ def eval_static(
     jobs: ep.JobsOpt = 1,
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
+    lookalikes: ep.LookalikesOpt = None,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from ...paths import SIM_DEV_LABELS
@@ -50,7 +51,7 @@ def eval_static(
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels_path)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
-                                  colour_cue=colour_cue)
+                                  colour_cue=colour_cue, lookalikes=lookalikes)
     ep.run_with_progress(
         lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,

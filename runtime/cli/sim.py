@@ -43,11 +43,13 @@ def demo(
     retries: ep.RetriesOpt = 0,
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
+    lookalikes: ep.LookalikesOpt = None,
     beta: BetaOpt = None,
     gamma: GammaOpt = None,
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
+    from ..encoders.lookalikes import linked_encoder
     from ..evaluation.methods import MethodSpec, build_grounders
     from ..evaluation.sim_eval import (
         LabelsError,
@@ -105,9 +107,12 @@ def demo(
     method = bundle.manifest.kb_name
     encoder = default_encoder(threads)
     try:
+        if lookalikes:
+            encoder = linked_encoder(encoder, bundle, sim_vocabulary())
         spec_m = MethodSpec(method, "demo", bundle_path, beta=DEFAULT_BETA if beta is None else beta,
                             gamma=DEFAULT_GAMMA if gamma is None else gamma)
-        grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue),
+        grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,
+                                                                        lookalikes=lookalikes),
                                     sim_vocabulary())
     except CueUnavailableError as exc:
         fail(str(exc))

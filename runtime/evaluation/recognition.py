@@ -34,6 +34,7 @@ import numpy.typing as npt
 
 if TYPE_CHECKING:
     from ..encoders.conse import ConSEImageEncoder
+    from ..encoders.lookalikes import linked_encoder
     from ..grounding.grounder import Grounder
 
 LOOK_DISTANCE = 0.35  # m from the object's centre
@@ -65,6 +66,7 @@ class Setting:
     tta: int = 1
     size_cue: bool = False
     colour_cue: bool = False
+    lookalikes: bool = False  # ConSE's classes linked to the names whose photos get them
 
 
 SETTINGS: tuple[Setting, ...] = (
@@ -79,6 +81,10 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("2x fit + colour cue", "2x, fit; p(o|r) weighed by the ROI's colour shares' fit to each "
             "name's typical colours (object_colours.json)", "2x", "fit", colour_cue=True),
     Setting("2x fit + size + colour cue", "2x, fit; both cues", "2x", "fit", size_cue=True, colour_cue=True),
+    Setting("2x fit + look-alikes", "2x, fit; ConSE's classes linked to the names whose photos get them "
+            "(object_lookalikes.json)", "2x", "fit", lookalikes=True),
+    Setting("2x fit + look-alikes + size cue", "2x, fit; look-alike links and the size cue", "2x", "fit",
+            size_cue=True, lookalikes=True),
 )
 
 
@@ -203,17 +209,20 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     names = [v.name for v in rendered]
-    encoders: dict[tuple[str, int], ConSEImageEncoder] = {}
+    encoders: dict[tuple[str, int, bool], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
     per_asset: dict[str, dict[str, int]] = {}
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         for s in SETTINGS:
-            enc = encoders.get((s.preprocess, s.tta))
+            enc = encoders.get((s.preprocess, s.tta, s.lookalikes))
             if enc is None:
-                enc = encoders[(s.preprocess, s.tta)] = ConSEImageEncoder(
+                enc = encoders.get((s.preprocess, s.tta, False)) or ConSEImageEncoder(
                     threads=threads, preprocess=s.preprocess, tta=s.tta)
+                if s.lookalikes:
+                    enc = linked_encoder(enc, bundle, sim_vocabulary())
+                encoders[(s.preprocess, s.tta, s.lookalikes)] = enc
             start = time.perf_counter()
             if s.source == "fused":
                 a = enc.embed_images([v.crop_2x for v in rendered])

@@ -293,12 +293,22 @@ def make_episode_specs(
 # encoder
 
 
-def default_encoder(threads: int = 1) -> ImageEncoder:
+def default_encoder(threads: int = 1, lookalikes: bool = False) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
-    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md)."""
+    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md).
+    ``lookalikes``: its classes linked to the sim vocabulary by the default bundle's look-alike
+    answers (``encoders/lookalikes.py``; every bundle ships the same records)."""
     from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, preprocess="fit")
+    encoder = ConSEImageEncoder(threads=threads, preprocess="fit")
+    if not lookalikes:
+        return encoder
+    from ...paths import KB_DIR
+    from ..encoders.lookalikes import linked_encoder
+    from ..kb.bundle import load_bundle
+    from ..sim.pipeline import sim_vocabulary
+
+    return linked_encoder(encoder, load_bundle(KB_DIR / "craft-e-default", check_encoder=False), sim_vocabulary())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -487,7 +497,7 @@ def _worker_context(
     """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
     from ..sim.pipeline import sim_vocabulary
 
-    enc = default_encoder(threads)
+    enc = default_encoder(threads, bool(settings.lookalikes))
     runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
     return build_grounders(runnable, settings, sim_vocabulary()), enc
 
@@ -544,10 +554,10 @@ def evaluate_sim(
     labels = load_sim_labels(labels_path)
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
-    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads)
+    settings = settings or GroundingSettings()
+    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, bool(settings.lookalikes))
     method_specs = list(methods) if methods is not None else select_methods()
     runnable, skipped = load_methods(method_specs, enc.text_encoder_id)
-    settings = settings or GroundingSettings()
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:

@@ -458,10 +458,10 @@ def evaluate_static(
     labels = load_sim_labels(labels_path)
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
-    enc = encoder if encoder is not None else default_encoder(threads)
+    settings = settings or GroundingSettings()
+    enc = encoder if encoder is not None else default_encoder(threads, bool(settings.lookalikes))
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
                                      enc.text_encoder_id)
-    settings = settings or GroundingSettings()
     from ..sim.pipeline import sim_vocabulary
 
     grounders = build_grounders(runnable, settings, sim_vocabulary())

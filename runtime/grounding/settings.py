@@ -68,6 +68,12 @@ class GroundingSettings(BaseModel):
     #: plate are not the colours a typical one is), so it is not the default
     #: (``docs/recognition.md``).
     colour_cue: bool | None = None
+    #: The image encoder links ImageNet classes to the vocabulary names whose photos get them (the
+    #: bundle's ``object_lookalikes.json``; ``encoders/conse.py``, ``link_class_embeddings``), so
+    #: ``p(o | r)`` reads a look-alike class as the object it stands for. A perception setting:
+    #: the evaluations build their one shared encoder from it. Opt-in: ``True`` turns it on (a
+    #: bundle without look-alikes for every vocabulary name is an error); ``None``/``False``: off.
+    lookalikes: bool | None = None
 
     @field_validator("temperature", mode="before")
     @classmethod
@@ -110,4 +116,6 @@ class GroundingSettings(BaseModel):
             out["size_cue"] = self.size_cue
         if self.colour_cue is not None:
             out["colour_cue"] = self.colour_cue
+        if self.lookalikes is not None:
+            out["lookalikes"] = self.lookalikes
         return out

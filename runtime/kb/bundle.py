@@ -25,7 +25,9 @@ from ...schemas.v1.bundle import (
     Manifest,
 )
 from ...schemas.v1.graph import KnowledgeGraph
+from ..encoders.conse import imagenet_class_names
 from .colours import COLOURS_FILE, TypicalColours, parse_colours
+from .lookalikes import LOOKALIKES_FILE, Lookalikes, parse_lookalikes
 from .sizes import SIZES_FILE, SizesError, TypicalSize, parse_sizes
 from .verify import (
     MAX_FILE_BYTES,
@@ -70,6 +72,9 @@ class Bundle:
     sizes: dict[str, TypicalSize] = field(default_factory=dict)
     #: object_colours.json: typical colours by object name (empty: none recorded, or an older bundle)
     colours: dict[str, TypicalColours] = field(default_factory=dict)
+    #: object_lookalikes.json: ImageNet classes photos of each object get (empty: none recorded,
+    #: or an older bundle)
+    lookalikes: dict[str, Lookalikes] = field(default_factory=dict)
 
     @cached_property
     def verb_index(self) -> dict[str, int]:
@@ -149,10 +154,13 @@ def load_bundle(
         sizes = parse_sizes(folder, data[SIZES_FILE], manifest.objects) if SIZES_FILE in data else {}
         colours = (parse_colours(folder, data[COLOURS_FILE], manifest.objects)
                    if COLOURS_FILE in data else {})
-    except SizesError as exc:  # ColoursError is one
+        lookalikes = (parse_lookalikes(folder, data[LOOKALIKES_FILE], manifest.objects,
+                                       frozenset(imagenet_class_names()))
+                      if LOOKALIKES_FILE in data else {})
+    except SizesError as exc:  # ColoursError and LookalikesError are ones
         raise BundleError(str(exc)) from None
     return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world,
-                  sizes, colours)
+                  sizes, colours, lookalikes)
 
 
 def check_content(

@@ -29,12 +29,15 @@ BUNDLE_FILES: tuple[str, ...] = (
     "open_world.json",
     "object_sizes.json",
     "object_colours.json",
+    "object_lookalikes.json",
 )
 #: Bundle files a bundle built before they existed may lack (it still loads; the runtime then
 #: goes without what the file provides). ``open_world.json``: issue 11's open-world model;
-#: ``object_sizes.json`` / ``object_colours.json``: the objects' typical sizes and colours (prompts
-#: ``object_size``, ``object_colour``), for perception.
-OPTIONAL_BUNDLE_FILES: tuple[str, ...] = ("open_world.json", "object_sizes.json", "object_colours.json")
+#: ``object_sizes.json`` / ``object_colours.json`` / ``object_lookalikes.json``: the objects' typical
+#: sizes and colours and the ImageNet classes photos of them get (prompts ``object_size``,
+#: ``object_colour``, ``object_lookalike``), for perception.
+OPTIONAL_BUNDLE_FILES: tuple[str, ...] = ("open_world.json", "object_sizes.json", "object_colours.json",
+                                          "object_lookalikes.json")
 
 
 def listed_files_ok(listed: set[str] | frozenset[str]) -> bool:

@@ -1,0 +1,61 @@
+"""``object_lookalikes.json``: a bundle's look-alike ImageNet classes, checked before the runtime uses them.
+
+The compiler writes one entry per object that an ``object_lookalike`` record answers: up to five
+ImageNet-1k class names with the share of photos of a typical instance expected to get each. The
+runtime links those classes to the object's name in the ConSE encoder (``encoders/conse.py``); a
+malformed entry would silently skew every image embedding, so each is refused here naming the
+file, the object and the fault.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from .sizes import SizesError
+
+LOOKALIKES_FILE = "object_lookalikes.json"
+#: One object's look-alikes: (ImageNet-1k class name, expected share of photos), as answered.
+Lookalikes = tuple[tuple[str, float], ...]
+
+
+class LookalikesError(SizesError):
+    """``object_lookalikes.json`` does not parse or holds an impossible entry."""
+
+
+def parse_lookalikes(folder: Path, blob: bytes, objects: list[str],
+                     class_names: frozenset[str] | None = None) -> dict[str, Lookalikes]:
+    """The look-alikes in ``blob`` by object name; every name must be one of the bundle's
+    ``objects`` and, when ``class_names`` is given, every class one of them."""
+    where = folder / LOOKALIKES_FILE
+    try:
+        raw: Any = json.loads(blob)
+        entries = raw["objects"]
+        if not isinstance(entries, dict):
+            raise TypeError("'objects' is not a JSON object")
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
+        raise LookalikesError(f"{where}: does not parse ({exc}); rebuild the bundle") from None
+    known = set(objects)
+    out: dict[str, Lookalikes] = {}
+    for name, entry in entries.items():
+        if name not in known:
+            raise LookalikesError(f"{where}: {name!r} is not an object of the bundle; rebuild the bundle")
+        try:
+            shares = {str(k): float(v) for k, v in dict(entry["classes"]).items()}
+        except (KeyError, TypeError, ValueError):
+            raise LookalikesError(f"{where}: {name!r} needs 'classes' (ImageNet class -> share); "
+                                  "rebuild the bundle") from None
+        if not 1 <= len(shares) <= 5:
+            raise LookalikesError(f"{where}: {name!r} names {len(shares)} classes; one to five are "
+                                  "expected; rebuild the bundle")
+        if not all(math.isfinite(v) and 0 < v <= 1 for v in shares.values()) or sum(shares.values()) > 1 + 1e-6:
+            raise LookalikesError(f"{where}: {name!r} has shares {shares}; each in (0, 1], adding up to "
+                                  "1 or less, are expected; rebuild the bundle")
+        unknown = sorted(set(shares) - class_names) if class_names is not None else []
+        if unknown:
+            raise LookalikesError(f"{where}: {name!r} names {unknown}, not ImageNet-1k classes of the "
+                                  "image encoder; rebuild the bundle")
+        out[name] = tuple(sorted(shares.items()))
+    return out
