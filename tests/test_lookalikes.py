@@ -1,5 +1,5 @@
-"""Look-alike knowledge: object_lookalike records -> bundle's object_lookalikes.json -> ConSE's class
-embeddings linked to the names whose photos get them. Fixture records use provider
+"""Look-alike knowledge: object_lookalike records -> bundle's object_lookalikes.json -> p(o | r)
+weighed by how well the classifier's ImageNet classes fit the classes each name's photos get. Fixture records use provider
 ``test-fixture`` (never ``curated``)."""
 
 from __future__ import annotations
@@ -23,43 +23,99 @@ from craft_e.compiler.per_object_prompts import (
 from craft_e.compiler.vocab import read_vocabulary
 from craft_e.paths import KB_DIR
 from craft_e.runtime.encoders.conse import (
+    CLASS_TOP_K,
     ConSEImageEncoder,
-    EncoderError,
-    conse_embed,
+    encode_with_classes,
     imagenet_class_names,
-    link_class_embeddings,
+    top_classes,
 )
-from craft_e.runtime.encoders.lookalikes import LookalikesUnavailableError, linked_encoder
+from craft_e.runtime.grounding.grounder import Grounder
+from craft_e.runtime.grounding.lookalike_cue import (
+    KAPPA,
+    LAMBDA,
+    LookalikeCueUnavailableError,
+    lookalike_log_likelihood,
+    lookalike_table,
+    with_lookalike_cue,
+)
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.kb.bundle import BundleError, load_bundle
 from craft_e.runtime.kb.lookalikes import LookalikesError, parse_lookalikes
+from craft_e.runtime.perception.roi import ROI
 from craft_e.runtime.sim.pipeline import sim_vocabulary
 from craft_e.schemas.v1.payloads import ObjectLookalikes
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
-
-
-def test_a_linked_class_moves_toward_the_name_by_its_share() -> None:
-    rng = np.random.default_rng(0)
+def test_the_table_spreads_the_unnamed_rest_and_lambda_evenly() -> None:
     classes = ["computer mouse", "crane", "banana", "crane"]  # two classes share a name, as in ImageNet
-    emb = np.stack([_unit(rng.normal(size=8)) for _ in classes]).astype(np.float32)
-    stapler, bird = _unit(rng.normal(size=8)), _unit(rng.normal(size=8))
-    links = {"stapler": [("computer mouse", 0.4)], "heron": [("crane", 0.05)]}
-    linked = link_class_embeddings(emb, classes, links, {"stapler": 3 * stapler, "heron": bird})
-    np.testing.assert_allclose(np.linalg.norm(linked, axis=1), 1.0, rtol=1e-6)
-    np.testing.assert_array_equal(linked[2], emb[2])  # named by no answer: unchanged
-    expected = _unit(emb[0].astype(np.float64) + 0.4 * stapler)  # the name's unit vector, times the share
-    np.testing.assert_allclose(linked[0], expected, rtol=1e-5)
-    assert float(linked[0] @ stapler) > float(emb[0] @ stapler)
-    for row in (1, 3):  # every class of a shared name is linked
-        np.testing.assert_allclose(linked[row], _unit(emb[row].astype(np.float64) + 0.05 * bird), rtol=1e-5)
-    # a photo read as "computer mouse" now lands nearer the stapler than before
-    probs = np.array([[0.7, 0.0, 0.3, 0.0]])
-    assert float(conse_embed(probs, linked, 2)[0] @ stapler) > float(conse_embed(probs, emb, 2)[0] @ stapler)
-    with pytest.raises(EncoderError, match=r"'stapler'.*not an ImageNet-1k class"):
-        link_class_embeddings(emb, classes, {"stapler": [("stapler", 0.5)]}, {"stapler": stapler})
+    answers = {"stapler": (("computer mouse", 0.4), ("crane", 0.2)), "banana": (("banana", 1.0),)}
+    table = lookalike_table(["stapler", "banana"], answers, classes)
+    assert table is not None and table.shape == (2, 4)
+    np.testing.assert_allclose(table.sum(axis=1), 1.0, rtol=1e-6)  # each row is a distribution
+    rest = (1 - 0.6) / 4
+    np.testing.assert_allclose(table[0], (1 - LAMBDA) * np.array([0.4, 0.1, 0, 0.1]) + (1 - LAMBDA) * rest
+                               + LAMBDA / 4, rtol=1e-6)  # 'crane' split between its two classes
+    np.testing.assert_allclose(table[1], (1 - LAMBDA) * np.array([0, 0, 1, 0]) + LAMBDA / 4, rtol=1e-6)
+    assert lookalike_table(["stapler", "pear"], answers, classes) is None  # partial coverage: no cue
+
+
+def test_the_likelihood_prefers_the_name_whose_photos_get_the_classes_seen() -> None:
+    classes = ["computer mouse", "crane", "banana", "crane"]
+    answers = {"stapler": (("computer mouse", 0.4),), "banana": (("banana", 0.9),)}
+    table = lookalike_table(["stapler", "banana"], answers, classes)
+    assert table is not None
+    ll = lookalike_log_likelihood([((0, 0.7), (2, 0.1)), ((2, 0.8),), None], table)
+    assert ll.shape == (3, 2)
+    assert ll[0, 0] > ll[0, 1] and ll[1, 1] > ll[1, 0]
+    assert (ll[2] == 0).all()  # no classes (another encoder): neutral
+    expected = KAPPA * np.log(0.7 * table[0, 0] + 0.1 * table[0, 2])
+    assert ll[0, 0] == pytest.approx(expected, rel=1e-5)
+
+
+def test_top_classes_come_from_the_same_pass_as_the_embeddings() -> None:
+    rng = np.random.default_rng(0)
+    crops = [rng.integers(0, 255, size=(40 + 7 * i, 50, 3), dtype=np.uint8) for i in range(3)]
+    encoder = ConSEImageEncoder(preprocess="fit")
+    emb, classes = encode_with_classes(encoder, crops)
+    np.testing.assert_array_equal(emb, encoder.embed_images(crops))  # the same bits
+    probs = encoder.class_probabilities(crops)
+    assert classes == top_classes(probs)
+    for row, top in zip(probs, classes, strict=True):
+        assert top is not None and len(top) == CLASS_TOP_K
+        assert [c for c, _ in top] == list(np.argsort(-row, kind="stable")[:CLASS_TOP_K])
+    empty, none = encode_with_classes(encoder, [])
+    assert empty.shape == (0, encoder.dim) and none == []
+
+
+def test_grounder_applies_the_lookalike_cue_to_rois_with_classes(kb_a: FixtureKB) -> None:
+    bundle = load_bundle(KB_DIR / "craft-e-default")
+    vocabulary = list(sim_vocabulary())
+    plain = Grounder(bundle, GroundingSettings(vocabulary=vocabulary, size_cue=False))
+    cued = Grounder(bundle, GroundingSettings(vocabulary=vocabulary, size_cue=False, lookalikes=True))
+    assert cued.lookalike_cue_active and not plain.lookalike_cue_active  # opt-in
+    names = imagenet_class_names()
+    stapler_class, _ = bundle.lookalikes["stapler"][0]
+    seen = ((names.index(stapler_class), 0.8),)
+    emb = bundle.embeddings["object"][[bundle.object_index["lemon"], bundle.object_index["lemon"]]]
+    p0 = plain.energies("fasten", emb).p_obj
+    p1 = cued.energies("fasten", emb, classes=[seen, None]).p_obj
+    table = lookalike_table(vocabulary, bundle.lookalikes, names)
+    assert table is not None
+    np.testing.assert_allclose(p1, with_lookalike_cue(p0, lookalike_log_likelihood([seen, None], table)),
+                               rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(p1[1], p0[1], rtol=1e-6)  # no classes: the image-only p
+    assert p1[0, vocabulary.index("stapler")] > p0[0, vocabulary.index("stapler")]
+    roi = ROI((0, 0, 10, 10), [0.5], image_embedding=emb[0], classes=seen)
+    grounding = cued.ground("fasten", [roi])
+    assert grounding.lookalike_cue_used and grounding.to_dict()["lookalike_cue_used"] is True
+    assert f"the image classifier saw: {stapler_class!r} 0.80" in grounding.render()
+    assert "lookalike_cue_used" not in plain.ground("fasten", [roi]).to_dict()  # stored results read as before
+    assert cued.settings.energy_dict()["lookalikes"] is True
+    assert "lookalikes" not in GroundingSettings().energy_dict()
+    with pytest.raises(LookalikeCueUnavailableError, match=r"--lookalikes: .* no look-alike classes for 1 of"):
+        Grounder(bundle, GroundingSettings(vocabulary=[*vocabulary, "accordion"], lookalikes=True))
+    with pytest.raises(LookalikeCueUnavailableError, match="craftc curate pending --prompt object_lookalike"):
+        Grounder(load_bundle(kb_a.bundle), GroundingSettings(lookalikes=True))
 
 
 def test_answers_must_be_distinct_classes_with_shares_at_most_whole() -> None:
@@ -135,22 +191,16 @@ def test_every_sim_name_has_lookalikes_in_the_shipped_bundles() -> None:
         assert set(sim_vocabulary()) <= set(load_bundle(KB_DIR / name).lookalikes), name
 
 
-def test_the_linked_encoder_names_its_table_and_needs_a_covered_vocabulary(kb_a: FixtureKB) -> None:
-    encoder = ConSEImageEncoder(preprocess="fit")
-    bundle = load_bundle(KB_DIR / "craft-e-default")
-    linked = linked_encoder(encoder, bundle, sim_vocabulary())
-    assert linked.id.startswith(encoder.id + "+look:") and linked.classifier is encoder.classifier
-    assert linked.fused().id == linked.id + "+fused"
-    stapler = bundle.embeddings["object"][bundle.object_index["stapler"]]
-    for cls, _ in bundle.lookalikes["stapler"]:  # every class the stapler's answer names moved toward it
-        row = imagenet_class_names().index(cls)
-        assert float(linked.class_embeddings[row] @ stapler) > float(encoder.class_embeddings[row] @ stapler)
-    untouched = [i for i, c in enumerate(imagenet_class_names())
-                 if all(c not in dict(v) for v in bundle.lookalikes.values())]
-    np.testing.assert_array_equal(linked.class_embeddings[untouched], encoder.class_embeddings[untouched])
-    with pytest.raises(LookalikesUnavailableError, match=r"no look-alike classes for 'accordion'.*object_lookalike"):
-        linked_encoder(encoder, bundle, [*sim_vocabulary(), "accordion"])
-    with pytest.raises(LookalikesUnavailableError, match="no look-alike classes"):
-        linked_encoder(encoder, load_bundle(kb_a.bundle), ["knife"])
-    assert GroundingSettings(lookalikes=True).energy_dict()["lookalikes"] is True
-    assert "lookalikes" not in GroundingSettings().energy_dict()  # unset: stored results read as before
+def test_cli_lookalikes_without_answers_is_a_clear_error(tmp_path: Path, kb_a: FixtureKB) -> None:
+    """``--lookalikes`` over a bundle without look-alike classes exits 2 naming the fix; nothing written."""
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli.main import app
+
+    out = tmp_path / "demo"
+    result = CliRunner().invoke(app, ["sim", "demo", "--verb", "cut", "--kb", str(kb_a.bundle),
+                                      "--no-size-cue", "--lookalikes", "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert "no look-alike classes" in result.output
+    assert "craftc curate pending --prompt object_lookalike" in result.output
+    assert not out.exists()

@@ -49,7 +49,6 @@ def demo(
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
-    from ..encoders.lookalikes import linked_encoder
     from ..evaluation.methods import MethodSpec, build_grounders
     from ..evaluation.sim_eval import (
         LabelsError,
@@ -107,8 +106,6 @@ def demo(
     method = bundle.manifest.kb_name
     encoder = default_encoder(threads)
     try:
-        if lookalikes:
-            encoder = linked_encoder(encoder, bundle, sim_vocabulary())
         spec_m = MethodSpec(method, "demo", bundle_path, beta=DEFAULT_BETA if beta is None else beta,
                             gamma=DEFAULT_GAMMA if gamma is None else gamma)
         grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,

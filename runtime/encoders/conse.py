@@ -17,7 +17,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -119,52 +119,33 @@ def conse_embed(probs: npt.NDArray[np.floating[Any]], class_emb: FloatArray, top
     return out
 
 
-def link_class_embeddings(
-    class_emb: FloatArray,
-    class_names: Sequence[str],
-    links: Mapping[str, Sequence[tuple[str, float]]],
-    name_embeddings: Mapping[str, npt.NDArray[np.floating[Any]]],
-) -> FloatArray:
-    """Class embeddings pulled toward the vocabulary names whose photos get them.
-
-    ``links`` maps a vocabulary name ``o`` to the ImageNet classes ``c`` photos of a typical ``o``
-    are expected to get, with their shares ``q(c | o)`` (``object_lookalike`` records). ConSE reads
-    a class by its own name, so a look-alike class whose name means something else (a stapler
-    classified as a "computer mouse") lands on the wrong vocabulary name. Here
-
-        e'_c = normalize( e_c + sum_o q(c | o) e_o )
-
-    adds each linked name's embedding with the weight its answer gives the class: a class no answer
-    names keeps its embedding; one named by several objects moves toward their mix in proportion;
-    a share of 0.05 barely moves it. The weights are the answers' own, with no constant fitted.
-    """
-    base = np.asarray(class_emb, dtype=np.float32)  # [C, d]
-    out = base.astype(np.float64)
-    touched: set[int] = set()
-    rows: dict[str, list[int]] = {}
-    for i, name in enumerate(class_names):
-        rows.setdefault(name, []).append(i)  # 'crane' and 'maillot' name two classes each
-    for obj in sorted(links):
-        vec = np.asarray(name_embeddings[obj], dtype=np.float64).reshape(-1)
-        vec = vec / max(float(np.linalg.norm(vec)), 1e-12)
-        for cls, share in links[obj]:
-            if cls not in rows:
-                raise EncoderError(f"look-alike class {cls!r} of {obj!r} is not an ImageNet-1k class name")
-            for i in rows[cls]:
-                out[i] += float(share) * vec
-                touched.add(i)
-    linked: FloatArray = base.copy()  # rows no answer names keep their exact values
-    idx = sorted(touched)
-    moved = out[idx]
-    linked[idx] = (moved / np.maximum(np.linalg.norm(moved, axis=1, keepdims=True), 1e-12)).astype(np.float32)
-    return linked
+#: One crop's most probable ImageNet classes: (class index, probability), most probable first.
+ClassTop = tuple[tuple[int, float], ...]
+#: How many classes an ROI carries (the look-alike cue reads them; ConSE's own top-k is the same).
+CLASS_TOP_K = 10
 
 
-def links_digest(links: Mapping[str, Sequence[tuple[str, float]]]) -> str:
-    """Short stable hash of a look-alike table (part of a linked encoder's ``id``)."""
-    canon = json.dumps({o: sorted([c, round(float(s), 6)] for c, s in links[o]) for o in sorted(links)},
-                       sort_keys=True)
-    return hashlib.sha256(canon.encode()).hexdigest()[:12]
+def top_classes(probs: npt.NDArray[np.floating[Any]], k: int = CLASS_TOP_K) -> list[ClassTop]:
+    """The ``k`` most probable classes of each row of ``probs`` ``[N, C]``, most probable first
+    (ties by class index)."""
+    p = np.asarray(probs, dtype=np.float64)
+    order = np.argsort(-p, axis=1, kind="stable")[:, :k]  # [N, k]
+    return [tuple((int(j), float(p[i, j])) for j in row) for i, row in enumerate(order.tolist())]
+
+
+def encode_with_classes(encoder: Any, crops: Sequence[UInt8Image]) -> tuple[FloatArray, list[ClassTop | None]]:
+    """``encoder.embed_images(crops)`` and, for an encoder with ImageNet class probabilities
+    (ConSE), each crop's top classes from the same forward pass (the embeddings are the same
+    bits: ConSE embeds exactly these probabilities). Other encoders: ``None`` per crop."""
+    if len(crops) == 0:
+        return np.zeros((0, int(encoder.dim)), dtype=np.float32), []
+    probabilities = getattr(encoder, "class_probabilities", None)
+    embed = getattr(encoder, "embed_probabilities", None)
+    if not (callable(probabilities) and callable(embed)):
+        return np.asarray(encoder.embed_images(crops), dtype=np.float32), [None] * len(crops)
+    probs = probabilities(crops)
+    classes: list[ClassTop | None] = list(top_classes(probs))
+    return np.asarray(embed(probs), dtype=np.float32), classes
 
 
 class ConSEImageEncoder:
@@ -259,21 +240,6 @@ class ConSEImageEncoder:
             twin.id = f"{self.id}+fused"
             twin._fused_twin = twin
             self._fused_twin = twin
-        return twin
-
-    def with_lookalikes(
-        self,
-        links: Mapping[str, Sequence[tuple[str, float]]],
-        name_embeddings: Mapping[str, npt.NDArray[np.floating[Any]]],
-    ) -> ConSEImageEncoder:
-        """This encoder with its class embeddings linked to vocabulary names
-        (``link_class_embeddings``); the classifier (and its fused twin, if built) is shared. Its
-        ``id`` names the look-alike table, so embeddings of the two encoders are never mixed."""
-        twin = copy.copy(self)
-        twin.class_embeddings = link_class_embeddings(self.class_embeddings, self.class_names, links,
-                                                      name_embeddings)
-        twin.id = f"{self.id}+look:{links_digest(links)}"
-        twin._fused_twin = twin if self._fused_twin is self else None
         return twin
 
     def top_classes(self, crops: Sequence[UInt8Image], k: int = 5) -> list[list[tuple[str, float]]]:

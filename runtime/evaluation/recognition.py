@@ -33,8 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:
-    from ..encoders.conse import ConSEImageEncoder
-    from ..encoders.lookalikes import linked_encoder
+    from ..encoders.conse import ClassTop, ConSEImageEncoder
     from ..grounding.grounder import Grounder
 
 LOOK_DISTANCE = 0.35  # m from the object's centre
@@ -66,7 +65,7 @@ class Setting:
     tta: int = 1
     size_cue: bool = False
     colour_cue: bool = False
-    lookalikes: bool = False  # ConSE's classes linked to the names whose photos get them
+    lookalike_cue: bool = False
 
 
 SETTINGS: tuple[Setting, ...] = (
@@ -81,10 +80,10 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("2x fit + colour cue", "2x, fit; p(o|r) weighed by the ROI's colour shares' fit to each "
             "name's typical colours (object_colours.json)", "2x", "fit", colour_cue=True),
     Setting("2x fit + size + colour cue", "2x, fit; both cues", "2x", "fit", size_cue=True, colour_cue=True),
-    Setting("2x fit + look-alikes", "2x, fit; ConSE's classes linked to the names whose photos get them "
-            "(object_lookalikes.json)", "2x", "fit", lookalikes=True),
-    Setting("2x fit + look-alikes + size cue", "2x, fit; look-alike links and the size cue", "2x", "fit",
-            size_cue=True, lookalikes=True),
+    Setting("2x fit + look-alike cue", "2x, fit; p(o|r) weighed by how well the classifier's ImageNet classes "
+            "fit the classes each name's photos get (object_lookalikes.json)", "2x", "fit", lookalike_cue=True),
+    Setting("2x fit + size + look-alike cue", "2x, fit; the size and look-alike cues", "2x", "fit",
+            size_cue=True, lookalike_cue=True),
 )
 
 
@@ -177,9 +176,10 @@ class RecognitionReport:
 
 def _ranks(grounder: Grounder, emb: npt.NDArray[np.float32], names: Sequence[str],
            extents: npt.NDArray[np.float64] | None = None,
-           colours: npt.NDArray[np.float64] | None = None) -> npt.NDArray[np.int64]:
+           colours: npt.NDArray[np.float64] | None = None,
+           classes: Sequence[ClassTop | None] | None = None) -> npt.NDArray[np.int64]:
     """Rank (0 = top) of each view's true name under p(o|r)."""
-    p = grounder.energies(grounder.verbs[0], emb, extents=extents, colours=colours).p_obj  # [N, O]; the verb does not enter p
+    p = grounder.energies(grounder.verbs[0], emb, extents=extents, colours=colours, classes=classes).p_obj  # [N, O]; the verb does not enter p
     cols = [grounder.vocabulary.index(n) for n in names]
     true = p[np.arange(len(names)), cols]
     return np.asarray((p > true[:, None]).sum(axis=1), dtype=np.int64)
@@ -191,7 +191,7 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     import torch
 
     from ...paths import KB_DIR
-    from ..encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder, encode_with_classes
     from ..grounding.grounder import Grounder
     from ..grounding.settings import GroundingSettings
     from ..kb.bundle import load_bundle
@@ -202,28 +202,26 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
-    grounders = {(size, colour): Grounder(bundle, GroundingSettings(
-        vocabulary=list(sim_vocabulary()), size_cue=size, colour_cue=colour))
-        for size in (False, True) for colour in (False, True)}
-    grounder = grounders[(False, False)]
+    grounders = {(s.size_cue, s.colour_cue, s.lookalike_cue): Grounder(bundle, GroundingSettings(
+        vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue))
+        for s in SETTINGS}
+    grounder = grounders[(False, False, False)]
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     names = [v.name for v in rendered]
-    encoders: dict[tuple[str, int, bool], ConSEImageEncoder] = {}
+    encoders: dict[tuple[str, int], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
     per_asset: dict[str, dict[str, int]] = {}
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         for s in SETTINGS:
-            enc = encoders.get((s.preprocess, s.tta, s.lookalikes))
+            enc = encoders.get((s.preprocess, s.tta))
             if enc is None:
-                enc = encoders.get((s.preprocess, s.tta, False)) or ConSEImageEncoder(
+                enc = encoders[(s.preprocess, s.tta)] = ConSEImageEncoder(
                     threads=threads, preprocess=s.preprocess, tta=s.tta)
-                if s.lookalikes:
-                    enc = linked_encoder(enc, bundle, sim_vocabulary())
-                encoders[(s.preprocess, s.tta, s.lookalikes)] = enc
             start = time.perf_counter()
+            classes: list[ClassTop | None] | None = None  # the fused view has no single classifier output
             if s.source == "fused":
                 a = enc.embed_images([v.crop_2x for v in rendered])
                 b = enc.embed_images([v.crop_look for v in rendered])
@@ -231,11 +229,12 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
                 rois = 2 * len(rendered)
             else:
                 attr = {"1x": "crop_1x", "2x": "crop_2x", "look": "crop_look"}[s.source]
-                emb = np.asarray(enc.embed_images([getattr(v, attr) for v in rendered]), dtype=np.float32)
+                emb, classes = encode_with_classes(enc, [getattr(v, attr) for v in rendered])
                 rois = len(rendered)
             ms = 1000 * (time.perf_counter() - start) / rois
-            ranks = _ranks(grounders[(s.size_cue, s.colour_cue)], emb, names, extents if s.size_cue else None,
-                           colours if s.colour_cue else None)
+            ranks = _ranks(grounders[(s.size_cue, s.colour_cue, s.lookalike_cue)], emb, names,
+                           extents if s.size_cue else None, colours if s.colour_cue else None,
+                           classes if s.lookalike_cue else None)
             rows.append({"setting": s.name, "description": s.description, "source": s.source,
                          "preprocess": s.preprocess, "tta": s.tta, "encoder_id": enc.id,
                          "top1": round(float(np.mean(ranks == 0)), 6),

@@ -293,22 +293,12 @@ def make_episode_specs(
 # encoder
 
 
-def default_encoder(threads: int = 1, lookalikes: bool = False) -> ImageEncoder:
+def default_encoder(threads: int = 1) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
-    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md).
-    ``lookalikes``: its classes linked to the sim vocabulary by the default bundle's look-alike
-    answers (``encoders/lookalikes.py``; every bundle ships the same records)."""
+    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md)."""
     from ..encoders.conse import ConSEImageEncoder
 
-    encoder = ConSEImageEncoder(threads=threads, preprocess="fit")
-    if not lookalikes:
-        return encoder
-    from ...paths import KB_DIR
-    from ..encoders.lookalikes import linked_encoder
-    from ..kb.bundle import load_bundle
-    from ..sim.pipeline import sim_vocabulary
-
-    return linked_encoder(encoder, load_bundle(KB_DIR / "craft-e-default", check_encoder=False), sim_vocabulary())
+    return ConSEImageEncoder(threads=threads, preprocess="fit")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -497,7 +487,7 @@ def _worker_context(
     """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
     from ..sim.pipeline import sim_vocabulary
 
-    enc = default_encoder(threads, bool(settings.lookalikes))
+    enc = default_encoder(threads)
     runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
     return build_grounders(runnable, settings, sim_vocabulary()), enc
 
@@ -555,7 +545,7 @@ def evaluate_sim(
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
     settings = settings or GroundingSettings()
-    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, bool(settings.lookalikes))
+    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads)
     method_specs = list(methods) if methods is not None else select_methods()
     runnable, skipped = load_methods(method_specs, enc.text_encoder_id)
     grounders = build_grounders(runnable, settings, sim_vocabulary())

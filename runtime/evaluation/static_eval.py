@@ -213,6 +213,7 @@ class StaticROI:
     embedding: Embedding
     extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
     colours: tuple[float, ...] | None = None  # colour shares of its raised pixels, for the colour cue
+    classes: tuple[tuple[int, float], ...] | None = None  # top ImageNet classes, for the look-alike cue
 
 
 @dataclass(frozen=True)
@@ -235,6 +236,7 @@ def render_scene(
     gt_config: GTGraspConfig | None = None, torch_threads_n: int = 1, rgb_scale: int = 2,
 ) -> StaticScene:
     """Build and render ``spec`` (no execution) and prepare the ROIs of every setting."""
+    from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box
     from ..grasp.predict import predict_grasps_rois
     from ..perception.colours import measure_colours
@@ -259,12 +261,13 @@ def render_scene(
     owners = [majority_body(obs, r.mask, bodies) for r in predicted]
     with torch_threads(torch_threads_n):
         boxes = [r.box_xywh for r in truth] + [r.box_xywh for r in predicted]
-        emb = (encoder.embed_images([crop_box(sharp, tuple(v * rgb_scale for v in b)) for b in boxes]) if boxes
-               else np.zeros((0, encoder.dim), dtype=np.float32))  # [N, d]
+        emb, cls = encode_with_classes(encoder, [crop_box(sharp, tuple(v * rgb_scale for v in b))
+                                                 for b in boxes])  # [N, d], N top-class lists
         # one network pass per scene, as the robot's pipeline (sim.pipeline.raw_candidates)
         net = {b: [tuple(g) for g in predict_grasps_rois(b, obs.rgb, obs.depth, [r.mask for r in predicted],
                                                         intrinsics=obs.intrinsics)] for b in backends}
     gt_emb, pred_emb = emb[: len(truth)], emb[len(truth):]
+    gt_cls, pred_cls = cls[: len(truth)], cls[len(truth):]
     world = obs.points_world()  # [H, W, 3]
     table_z = scene.layout.table_z
     raised = raised_mask(world, table_z, FingerGeometry().height_tolerance)
@@ -278,15 +281,16 @@ def render_scene(
 
     settings: dict[str, list[StaticROI]] = {
         "gt/gt": [StaticROI(fbox(r.box_xywh), r.mask, tuple(rects.get(r.label, [])) if r.label is not None
-                            else (), gt_emb[i], gt_ext[i], gt_col[i]) for i, r in enumerate(truth)],
+                            else (), gt_emb[i], gt_ext[i], gt_col[i], gt_cls[i]) for i, r in enumerate(truth)],
         "gt/predicted": [StaticROI(fbox(r.box_xywh), r.mask,
                                    tuple(g for g in rects.get(owner, []) if rect_centre_on(g, r.mask))
-                                   if owner is not None else (), pred_emb[i], pred_ext[i], pred_col[i])
+                                   if owner is not None else (), pred_emb[i], pred_ext[i], pred_col[i],
+                                   pred_cls[i])
                          for i, (r, owner) in enumerate(zip(predicted, owners, strict=True))],
     }
     for b in backends:
         settings[f"{b}/predicted"] = [StaticROI(fbox(r.box_xywh), r.mask, net[b][i], pred_emb[i], pred_ext[i],
-                                                pred_col[i])
+                                                pred_col[i], pred_cls[i])
                                       for i, r in enumerate(predicted)]
     return StaticScene(spec, obs.rgb, target.box_xywh if target is not None else None,
                        tuple(rects.get(target_body, [])), settings)
@@ -299,6 +303,7 @@ def _perturbed(
     """The ROIs under a noise level (scores first, then boxes, in ROI order: reproducible)."""
     if level.clean:
         return rois
+    from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box
 
     rb = _robustness()
@@ -309,11 +314,12 @@ def _perturbed(
         grasps = tuple(Grasp2D(g.center_xy, g.angle_rad, g.width_px, g.length_px, float(s))
                        for g, s in zip(r.grasps, scores, strict=True))
         box = r.box if level.box_frac == 0 else tuple(float(v) for v in rb.jitter_box(r.box, level.box_frac, rng, (w, h)))
-        out.append(StaticROI(box, r.mask, grasps, r.embedding, r.extents_m, r.colours))  # type: ignore[arg-type]
+        out.append(StaticROI(box, r.mask, grasps, r.embedding, r.extents_m, r.colours,  # type: ignore[arg-type]
+                             r.classes))
     if level.box_frac:
         crops = [crop_box(rgb, r.box) for r in out]
-        emb = encoder.embed_images(crops)
-        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m, r.colours) for i, r in enumerate(out)]
+        emb, cls = encode_with_classes(encoder, crops)
+        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m, r.colours, cls[i]) for i, r in enumerate(out)]
     return out
 
 
@@ -459,7 +465,7 @@ def evaluate_static(
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
     settings = settings or GroundingSettings()
-    enc = encoder if encoder is not None else default_encoder(threads, bool(settings.lookalikes))
+    enc = encoder if encoder is not None else default_encoder(threads)
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
                                      enc.text_encoder_id)
     from ..sim.pipeline import sim_vocabulary
@@ -534,5 +540,5 @@ def _static_record(
 def _grounding_rois(rois: list[StaticROI]) -> list[ROI]:
     return [ROI(box_xywh=r.box, grasp_scores=[g.quality for g in r.grasps], grasps=list(r.grasps),
                 image_embedding=r.embedding, mask=r.mask, label=f"roi{i}", extents_m=r.extents_m,
-                colours=r.colours)
+                colours=r.colours, classes=r.classes)
             for i, r in enumerate(rois)]

@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..encoders.base import TextEncoder
+from ..encoders.conse import ClassTop, imagenet_class_names
 from ..kb.bundle import Bundle, PathStep
 from ..kb.colours import COLOUR_TERMS
 from ..perception.roi import ROI
@@ -48,6 +49,12 @@ from .energies import (
     property_specificity,
     required_matrix_from_graph,
     weight_matrices_from_graph,
+)
+from .lookalike_cue import (
+    LookalikeCueUnavailableError,
+    lookalike_log_likelihood,
+    lookalike_table,
+    with_lookalike_cue,
 )
 from .open_world import (
     REQUEST_MIN_CONFIDENCE,
@@ -136,6 +143,9 @@ class Grounding:
     size_cue_used: bool = False
     #: p(o | r) weighed some ROI's colours against typical colours (``colour_cue.py``)
     colour_cue_used: bool = False
+    #: p(o | r) weighed some ROI's ImageNet classes against the objects' look-alikes
+    #: (``lookalike_cue.py``)
+    lookalike_cue_used: bool = False
 
     @property
     def abstained(self) -> bool:
@@ -170,6 +180,7 @@ class Grounding:
             "open_vocab_used": self.open_vocab_used,
             "size_cue_used": self.size_cue_used,
             "colour_cue_used": self.colour_cue_used,
+            **({"lookalike_cue_used": True} if self.lookalike_cue_used else {}),
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
             "abstained": self.abstained,
@@ -185,7 +196,8 @@ class Grounding:
         st = self.settings
         lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={st.alpha:g} beta={st.beta:g} "
                  f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode}"
-                 f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''})"]
+                 f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''}"
+                 f"{', look-alike cue' if self.lookalike_cue_used else ''})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -218,6 +230,11 @@ class Grounding:
             seen = ", ".join(f"{t} {100 * v:.0f} %" for t, v in _named_colours(best.roi.colours).items())
             lines.append(f"colours seen: {seen} (the colour cue weighed them against each object's "
                          "typical colours)")
+        if self.lookalike_cue_used and best.roi.classes:
+            names = imagenet_class_names()
+            seen = ", ".join(f"{names[c]!r} {p:.2f}" for c, p in best.roi.classes[:3])
+            lines.append(f"the image classifier saw: {seen} (the look-alike cue weighed them against "
+                         "the classes each object's photos get)")
         if best.inference is not None:
             lines.append(best.inference.describe())
         if best.paths:
@@ -369,6 +386,12 @@ class Grounder:
         if self.settings.colour_cue is True and self._colour_table is None:
             raise ColourCueUnavailableError(self._uncovered("--colour-cue", "typical colours", names,
                                                             bundle.colours, "object_colour", "the colour cue"))
+        self._lookalike_table = (lookalike_table(names, bundle.lookalikes, imagenet_class_names())
+                                 if self.settings.lookalikes is True else None)
+        if self.settings.lookalikes is True and self._lookalike_table is None:
+            raise LookalikeCueUnavailableError(self._uncovered(
+                "--lookalikes", "look-alike classes", names, bundle.lookalikes, "object_lookalike",
+                "the look-alike cue"))
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
 
         self._forbidden: dict[str, frozenset[str]] = {}
@@ -562,6 +585,12 @@ class Grounder:
         return self._colour_table is not None
 
     @property
+    def lookalike_cue_active(self) -> bool:
+        """Whether ``p(o | r)`` weighs the ROIs' ImageNet classes (on, and every vocabulary object
+        has look-alike classes)."""
+        return self._lookalike_table is not None
+
+    @property
     def temperature(self) -> float:
         return self.settings.temperature
 
@@ -585,19 +614,22 @@ class Grounder:
 
     def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None,
                  p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
-                 colours: npt.NDArray[Any] | None = None) -> EnergyTerms:
+                 colours: npt.NDArray[Any] | None = None,
+                 classes: Sequence[ClassTop | None] | None = None) -> EnergyTerms:
         """The three energies for ``N`` ROIs at once: ``embeddings`` ``[N, d]``, ``grasp_max``
         ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0). ``p_obj``
         ``[N, O]`` over ``vocabulary`` replaces the perceived ``p(o | r)`` (diagnostics, e.g. the
         sim testbed's knowledge-vs-perception split with p set to the true class). ``extents``
         ``[N, 3]`` (metres, longest first; NaN rows: unmeasured) feed the size cue when it is on,
-        ``colours`` ``[N, 11]`` (shares per colour term; NaN rows: unmeasured) the colour cue."""
+        ``colours`` ``[N, 11]`` (shares per colour term; NaN rows: unmeasured) the colour cue and
+        ``classes`` (each ROI's top ImageNet classes, or None) the look-alike cue."""
         return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj, extents,
-                              colours)
+                              colours, classes)
 
     def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None,
                   p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
-                  colours: npt.NDArray[Any] | None = None) -> EnergyTerms:
+                  colours: npt.NDArray[Any] | None = None,
+                  classes: Sequence[ClassTop | None] | None = None) -> EnergyTerms:
         emb = _unit_rows(embeddings)  # [N, d]
         if emb.ndim != 2 or emb.shape[1] != self.dim:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
@@ -608,6 +640,8 @@ class Grounder:
                 p = with_size_cue(p, size_log_likelihood(extents, self._size_table))
             if self._colour_table is not None and colours is not None:
                 p = with_colour_cue(p, colour_log_likelihood(colours, self._colour_table))
+            if self._lookalike_table is not None and classes is not None:
+                p = with_lookalike_cue(p, lookalike_log_likelihood(classes, self._lookalike_table))
         else:
             p = np.asarray(p_obj, dtype=np.float32)
             if p.shape != (len(emb), len(self.vocabulary)):
@@ -641,7 +675,7 @@ class Grounder:
             else:
                 usable.append(i)
         ranked: list[RankedROI] = []
-        size_cue_used = colour_cue_used = False
+        size_cue_used = colour_cue_used = lookalike_cue_used = False
         if usable:
             emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
@@ -655,7 +689,9 @@ class Grounder:
                 dtype=np.float64)  # [N, 11]
             size_cue_used = extents is not None and bool(np.isfinite(extents).all(axis=1).any())
             colour_cue_used = colours is not None and bool(np.isfinite(colours).all(axis=1).any())
-            terms = self._energies(plan, emb, gmax, extents=extents, colours=colours)
+            classes = None if self._lookalike_table is None else [rois[i].classes for i in usable]
+            lookalike_cue_used = classes is not None and any(classes)
+            terms = self._energies(plan, emb, gmax, extents=extents, colours=colours, classes=classes)
             top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
             top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once
             top_i = top.tolist()
@@ -678,7 +714,7 @@ class Grounder:
             open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
             request=plan.request, property_names=self.properties if plan.request is not None else [],
             notes=self._open_world_notes(plan, ranked), size_cue_used=size_cue_used,
-            colour_cue_used=colour_cue_used,
+            colour_cue_used=colour_cue_used, lookalike_cue_used=lookalike_cue_used,
         )
 
     def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:

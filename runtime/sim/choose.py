@@ -52,6 +52,7 @@ class LazyROI:
     heights: HeightMap | None = None  # the other objects' surfaces, for the pick's clearance check
     extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
     colours: tuple[float, ...] | None = None  # colour shares of its pixels, for the colour cue
+    classes: tuple[tuple[int, float], ...] | None = None  # top ImageNet classes, for the look-alike cue
     next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
     verified: set[int] = field(default_factory=set)  # indices IK accepted
     #: fitting grasps not checked yet, in order (``pipeline.iter_fitting_with_refinements``):
@@ -82,7 +83,7 @@ class LazyROI:
                    grasp_scores=[self.scores[self.next_index]] if rest else [],
                    grasps=[self.fitting[self.next_index]] if rest else [],
                    image_embedding=self.embedding, label=label, extents_m=self.extents_m,
-                   colours=self.colours)
+                   colours=self.colours, classes=self.classes)
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,7 @@ def perceive_for_pick(
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
     evaluation's path, keeps the checkpoints' layer layout so published results reproduce.
     ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue)."""
+    from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box, inference_encoder
     from ..perception.extents import measure_extents
     from ..perception.segment import segment
@@ -162,7 +164,7 @@ def perceive_for_pick(
             raw = raw_candidates(env.scene, obs, rois, [None] * len(rois), config, fused=True)
         with _stage(timings, "encode"):
             crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
-            embeddings = fast_encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
+            embeddings, classes = encode_with_classes(fast_encoder, crops)
     table_z = env.scene.layout.table_z
     out: list[LazyROI] = []
     with _stage(timings, "finger_checks"):
@@ -174,7 +176,7 @@ def perceive_for_pick(
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
                                [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
                                measure_extents(material, table_z),
-                               roi_colours(obs.rgb, raised, roi) if colours else None,
+                               roi_colours(obs.rgb, raised, roi) if colours else None, classes[i],
                                unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
                                mask=roi.mask, material=material, raw=raw[i]))
     return out

@@ -205,6 +205,8 @@ class PerceivedROI:
     extents_m: tuple[float, float, float] | None = None
     #: colour shares of its raised pixels (``perception/colours.py``; the colour cue)
     colours: tuple[float, ...] | None = None
+    #: the classifier's top ImageNet classes on its crop (``encode_with_classes``; the look-alike cue)
+    classes: tuple[tuple[int, float], ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -552,6 +554,7 @@ def perceive(
     grasps grounding must not use (``retry``: those that already failed). ``colours``: measure
     each ROI's colour shares (only a grounder with the opt-in colour cue reads them).
     """
+    from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box
 
     scene = env.scene
@@ -571,7 +574,7 @@ def perceive(
             raw = raw_candidates(scene, obs, rois, owners, config)
         with _stage(timings, "encode"):
             crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
-            embeddings = encoder.embed_images(crops) if crops else np.zeros((0, encoder.dim), np.float32)
+            embeddings, classes = encode_with_classes(encoder, crops)
     table_z = scene.layout.table_z
     perceived: list[PerceivedROI] = []
     with _stage(timings, "grasp_checks"):
@@ -589,7 +592,7 @@ def perceive(
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
         perceived.append(PerceivedROI(roi, tuple(candidates), usable,
                                       np.asarray(embeddings[i], np.float32), body, iou, extents[i],
-                                      shares[i]))
+                                      shares[i], classes[i]))
     target_roi = None
     if perceived:
         best = max(range(len(perceived)), key=lambda i: (perceived[i].target_iou, -i))
@@ -628,6 +631,7 @@ def grounding_rois(perception: ScenePerception) -> list[ROI]:
             label=f"roi{i}",
             extents_m=r.extents_m,
             colours=r.colours,
+            classes=r.classes,
         )
         for i, r in enumerate(perception.rois)
     ]
