@@ -204,3 +204,30 @@ def test_cli_lookalikes_without_answers_is_a_clear_error(tmp_path: Path, kb_a: F
     assert "no look-alike classes" in result.output
     assert "craftc curate pending --prompt object_lookalike" in result.output
     assert not out.exists()
+
+
+def test_the_service_takes_the_classifiers_classes() -> None:
+    from fastapi.testclient import TestClient
+
+    from craft_e.runtime.serve.app import build_service, create_app
+
+    service = build_service(KB_DIR / "craft-e-default")
+    bundle = service.bundle
+    lemon = bundle.embeddings["object"][bundle.object_index["lemon"]].tolist()
+    objects = ["lemon", "stapler", "banana"]
+    stapler_class = bundle.lookalikes["stapler"][0][0]
+    roi = {"box_xywh": [0, 0, 5, 5], "grasp_scores": [0.9], "image_embedding": lemon,
+           "imagenet_classes": {stapler_class: 0.8}}
+    with TestClient(create_app(service)) as client:
+        plain = client.post("/ground", json={"verb": "fasten", "rois": [roi], "objects": objects}).json()
+        cued = client.post("/ground", json={"verb": "fasten", "rois": [roi], "objects": objects,
+                                            "options": {"lookalikes": True}}).json()
+        no_vocabulary = client.post("/ground", json={"verb": "fasten", "rois": [roi], "options": {"lookalikes": True}})
+        bad = client.post("/ground", json={"verb": "fasten", "objects": objects,
+                                           "rois": [{**roi, "imagenet_classes": {"stapler": 0.5}}]})
+    assert "lookalike_cue_used" not in plain and cued["lookalike_cue_used"] is True
+    p_plain = {h["object"]: h["p"] for h in plain["ranked"][0]["hypotheses"]}
+    p_cued = {h["object"]: h["p"] for h in cued["ranked"][0]["hypotheses"]}
+    assert p_cued["stapler"] > p_plain.get("stapler", 0.0)  # a class the stapler's photos get
+    assert bad.status_code == 422 and bad.json()["detail"][0]["loc"][-1] == "imagenet_classes"
+    assert no_vocabulary.status_code == 422 and "objects" in no_vocabulary.text

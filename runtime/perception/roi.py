@@ -84,6 +84,7 @@ def build_rois(
     support plane; the whole box when that is empty); else none — an ROI without grasp
     scores, which the caller decides how to treat. ``RoiError`` names the failing box.
     """
+    from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box
 
     crops = []
@@ -92,7 +93,7 @@ def build_rois(
             crops.append(crop_box(rgb, b.box))
         except ValueError as exc:
             raise RoiError(i, str(exc)) from None
-    embeddings = encoder.embed_images(crops)  # [N, d]
+    embeddings, classes = encode_with_classes(encoder, crops)  # [N, d], the classifier's top classes
     rois: list[ROI] = []
     for i, b in enumerate(boxes):
         grasps: list[Any] = []
@@ -104,7 +105,7 @@ def build_rois(
                 raise RoiError(i, f"grasp prediction ({grasp_backend}) failed for ROI {i}: {exc}") from None
             scores = [float(g.quality) for g in grasps]
         rois.append(ROI(box_xywh=b.box, grasp_scores=scores, grasps=grasps,
-                        image_embedding=embeddings[i], label=b.label))
+                        image_embedding=embeddings[i], label=b.label, classes=classes[i]))
     return rois
 
 

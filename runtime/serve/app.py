@@ -116,6 +116,10 @@ class GroundOptions(BaseModel):
     colour_cue: bool | None = Field(None, description=(
         "Weigh p(o | r) by each ROI's `colours` against the objects' typical colours (opt-in; needs "
         "`objects` whose every name has typical colours in the bundle)."))
+    lookalikes: bool | None = Field(None, description=(
+        "Weigh p(o | r) by each ROI's `imagenet_classes` against the ImageNet classes each object's photos "
+        "get (the look-alike cue; opt-in; needs `objects` whose every name has look-alike classes in the "
+        "bundle). /ground_image measures the classes itself."))
 
 
 Box = tuple[float, float, float, float]
@@ -163,6 +167,33 @@ def _check_extents(values: tuple[float, float, float] | None) -> tuple[float, fl
     return a, b, c
 
 
+def _check_classes(values: dict[str, float] | None) -> dict[str, float] | None:
+    """An ROI's ImageNet classes: names the classifier can output, probabilities in [0, 1]."""
+    if values is None:
+        return None
+    from ..encoders.conse import CLASS_TOP_K, imagenet_class_names
+
+    known = set(imagenet_class_names())
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"imagenet_classes {unknown[:3]}: not ImageNet-1k class names of the image encoder")
+    if not 1 <= len(values) <= CLASS_TOP_K:
+        raise ValueError(f"imagenet_classes: one to {CLASS_TOP_K} classes, got {len(values)}")
+    if not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values.values()) or sum(values.values()) > 1 + 1e-6:
+        raise ValueError(f"imagenet_classes {values}: each probability in [0, 1], adding up to 1 or less")
+    return values
+
+
+def _class_top(values: dict[str, float] | None) -> tuple[tuple[int, float], ...] | None:
+    """A request's classes as the runtime carries them: (class index, probability), most probable first."""
+    if values is None:
+        return None
+    from ..encoders.conse import imagenet_class_names
+
+    index = {name: i for i, name in reversed(list(enumerate(imagenet_class_names())))}  # first of a shared name
+    return tuple(sorted(((index[n], float(p)) for n, p in values.items()), key=lambda cp: (-cp[1], cp[0])))
+
+
 def _check_colours(values: dict[str, float] | None) -> dict[str, float] | None:
     if values is None:
         return None
@@ -203,12 +234,17 @@ class RoiIn(BaseModel):
         "yellow, green, blue, purple, pink, brown; they add up to 1). With a scene vocabulary whose every "
         "name has typical colours in the bundle, p(o | r) also weighs how well they fit (the colour cue); "
         "null: not measured."))
+    imagenet_classes: dict[str, float] | None = Field(None, description=(
+        "The image classifier's most probable ImageNet-1k classes on the region's crop (class name -> "
+        "probability, at most 10). With `options.lookalikes`, p(o | r) also weighs how well they fit the "
+        "classes each object's photos get (the look-alike cue); null: not measured."))
 
     _box = field_validator("box_xywh")(_check_box)
     _scores = field_validator("grasp_scores")(_check_scores)
     _embedding = field_validator("image_embedding")(_check_embedding)
     _extents = field_validator("extents_m")(_check_extents)
     _colours = field_validator("colours")(_check_colours)
+    _classes = field_validator("imagenet_classes")(_check_classes)
 
 
 class GroundRequest(BaseModel):
@@ -284,7 +320,7 @@ class GroundingService:
     max_image_pixels: int = MAX_IMAGE_PIXELS
     max_concurrent_images: int = DEFAULT_MAX_CONCURRENT_IMAGES
     _encoder_lock: threading.Lock = field(default_factory=threading.Lock)
-    _vocab_grounders: dict[tuple[str, tuple[str, ...], bool], Grounder] = field(default_factory=dict, repr=False)
+    _vocab_grounders: dict[tuple[str, tuple[str, ...], bool, bool], Grounder] = field(default_factory=dict, repr=False)
     _image_slots: threading.BoundedSemaphore | None = field(default=None, repr=False)
 
     def image_slot(self) -> threading.BoundedSemaphore:
@@ -307,15 +343,17 @@ class GroundingService:
         }
 
     def vocabulary_grounder(self, base: Grounder, form: EnergyForm, objects: list[str],
-                            colour_cue: bool = False) -> Grounder:
+                            colour_cue: bool = False, lookalikes: bool = False) -> Grounder:
         """A grounder over a request's scene vocabulary (unknown names inferred), kept for the
         last ``VOCABULARY_CACHE`` vocabularies; shares the server's text encoder."""
-        key = (form, tuple(objects), colour_cue)
+        key = (form, tuple(objects), colour_cue, lookalikes)
         found = self._vocab_grounders.pop(key, None)
         if found is None:
             update: dict[str, object] = {"energy_form": form, "vocabulary": tuple(objects)}
             if colour_cue:
                 update["colour_cue"] = True
+            if lookalikes:
+                update["lookalikes"] = True
             try:
                 found = Grounder(self.bundle, base.settings.model_copy(update=update),
                                  text_encoder=base._text_encoder)
@@ -340,8 +378,12 @@ class GroundingService:
         if colour_cue and objects is None:
             raise _invalid(["options", "colour_cue"], "the colour cue needs the scene's `objects`, each with "
                            "typical colours in the bundle", "colour_cue_unavailable")
+        lookalikes = bool(options is not None and options.lookalikes)
+        if lookalikes and objects is None:
+            raise _invalid(["options", "lookalikes"], "the look-alike cue needs the scene's `objects`, each "
+                           "with look-alike classes in the bundle", "lookalike_cue_unavailable")
         if objects is not None:
-            base = self.vocabulary_grounder(base, form, objects, colour_cue)
+            base = self.vocabulary_grounder(base, form, objects, colour_cue, lookalikes)
         if options is None or (options.alpha, options.beta, options.gamma) == (None, None, None):
             return base
         return base.with_weights(
@@ -373,7 +415,7 @@ class GroundingService:
                                    "embedding_zero")
             rois.append(ROI(box_xywh=r.box_xywh, grasp_scores=list(r.grasp_scores),
                             image_embedding=emb, label=r.label, extents_m=r.extents_m,
-                            colours=_colour_shares(r.colours)))
+                            colours=_colour_shares(r.colours), classes=_class_top(r.imagenet_classes)))
         return rois
 
     def check_image_boxes(self, count: int) -> None:
