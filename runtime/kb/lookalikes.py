@@ -9,12 +9,10 @@ file, the object and the fault.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
-from typing import Any
 
-from .sizes import SizesError
+from .sizes import SizesError, object_entries
 
 LOOKALIKES_FILE = "object_lookalikes.json"
 #: One object's look-alikes: (ImageNet-1k class name, expected share of photos), as answered.
@@ -30,18 +28,9 @@ def parse_lookalikes(folder: Path, blob: bytes, objects: list[str],
     """The look-alikes in ``blob`` by object name; every name must be one of the bundle's
     ``objects`` and, when ``class_names`` is given, every class one of them."""
     where = folder / LOOKALIKES_FILE
-    try:
-        raw: Any = json.loads(blob)
-        entries = raw["objects"]
-        if not isinstance(entries, dict):
-            raise TypeError("'objects' is not a JSON object")
-    except (ValueError, KeyError, TypeError, RecursionError) as exc:
-        raise LookalikesError(f"{where}: does not parse ({exc}); rebuild the bundle") from None
-    known = set(objects)
+    entries = object_entries(where, blob, objects, LookalikesError)
     out: dict[str, Lookalikes] = {}
     for name, entry in entries.items():
-        if name not in known:
-            raise LookalikesError(f"{where}: {name!r} is not an object of the bundle; rebuild the bundle")
         try:
             shares = {str(k): float(v) for k, v in dict(entry["classes"]).items()}
         except (KeyError, TypeError, ValueError):

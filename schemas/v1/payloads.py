@@ -171,6 +171,15 @@ class ObjectSize(_Strict):
         return value
 
 
+def _distinct_shares(what: str, names: list[str], shares: list[float]) -> None:
+    """Shares of a whole (a surface, photos): each ``what`` named once, adding up to 1 or less."""
+    if len(set(names)) != len(names):
+        raise ValueError(f"each {what} may appear once, got {names}")
+    total = sum(shares)
+    if total > 1.0 + 1e-6:
+        raise ValueError(f"the shares add up to {total:g}; they must add up to 1 or less")
+
+
 #: The eleven basic colour terms (Berlin & Kay): the only words ``object_colour`` answers use, so
 #: the runtime can sort an ROI's pixels into the same bins (``perception/colours.py``).
 ColourTerm = Literal["black", "white", "grey", "red", "orange", "yellow", "green", "blue", "purple",
@@ -202,12 +211,7 @@ class ObjectColour(_Strict):
     @field_validator("colours")
     @classmethod
     def _distinct_and_at_most_whole(cls, value: list[ColourShare]) -> list[ColourShare]:
-        terms = [c.colour for c in value]
-        if len(set(terms)) != len(terms):
-            raise ValueError(f"each colour may appear once, got {terms}")
-        total = sum(c.share for c in value)
-        if total > 1.0 + 1e-6:
-            raise ValueError(f"the shares add up to {total:g}; they must add up to 1 or less")
+        _distinct_shares("colour", [c.colour for c in value], [c.share for c in value])
         return value
 
 
@@ -238,10 +242,5 @@ class ObjectLookalikes(_Strict):
     @field_validator("classes")
     @classmethod
     def _distinct_and_at_most_whole(cls, value: list[ClassShare]) -> list[ClassShare]:
-        names = [c.imagenet_class for c in value]
-        if len(set(names)) != len(names):
-            raise ValueError(f"each class may appear once, got {names}")
-        total = sum(c.share for c in value)
-        if total > 1.0 + 1e-6:
-            raise ValueError(f"the shares add up to {total:g}; they must add up to 1 or less")
+        _distinct_shares("class", [c.imagenet_class for c in value], [c.share for c in value])
         return value
