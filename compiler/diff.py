@@ -179,7 +179,7 @@ def _colour_diff(a: Bundle, b: Bundle) -> Json:
 
 
 def _lookalike_diff(a: Bundle, b: Bundle) -> Json:
-    """Look-alike classes (``object_lookalikes.json``, the encoder's class links) added, removed or changed."""
+    """Look-alike classes (``object_lookalikes.json``, the look-alike cue's knowledge) added, removed or changed."""
     changed = [{"object": n, "a": {"classes": dict(a.lookalikes[n])}, "b": {"classes": dict(b.lookalikes[n])}}
                for n in sorted(set(a.lookalikes) & set(b.lookalikes)) if a.lookalikes[n] != b.lookalikes[n]]
     return {**_added_removed(a.lookalikes, b.lookalikes), "changed": changed}
@@ -509,7 +509,7 @@ def render_markdown(result: dict[str, Any]) -> str:
         ("never-pick pairs", "forbidden"),
         ("typical sizes (size cue)", "sizes"),
         ("typical colours (colour cue)", "colours"),
-        ("look-alike classes (encoder links)", "lookalikes"),
+        ("look-alike classes (look-alike cue)", "lookalikes"),
     ):
         out.append(f"| {label} | {s[key + '_added']} | {s[key + '_removed']} |")
     out.append("")

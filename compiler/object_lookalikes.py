@@ -3,9 +3,9 @@
 The robot's image recogniser only knows the ImageNet-1k label space, and ConSE maps its answer to
 a vocabulary name by *text* similarity: a look-alike class whose name means something else lands
 on the wrong name. One record per object, in the object's glossed sense, names up to five classes
-with the share of photos expected to get each; the runtime links those classes to the object's
-name (``runtime/encoders/conse.py``, ``link_class_embeddings``). A build looks the records up and
-never asks for missing ones: the links are off for a vocabulary that is not fully covered.
+with the share of photos expected to get each; the runtime's look-alike cue weighs an ROI's
+classes against them (``runtime/grounding/lookalike_cue.py``). A build looks the records up and
+never asks for missing ones: the cue is off for a vocabulary that is not fully covered.
 """
 
 from __future__ import annotations

@@ -61,9 +61,10 @@ ColourCueOpt = Annotated[bool | None, typer.Option(
          "dev episodes, docs/recognition.md); --colour-cue requires colours for every vocabulary object.", show_default=False)]
 LookalikesOpt = Annotated[bool | None, typer.Option(
     "--lookalikes/--no-lookalikes",
-    help="Link the image encoder's ImageNet classes to the vocabulary names whose photos get them (the "
-         "bundle's object_lookalikes.json; encoders/conse.py), so a look-alike class reads as the object it "
-         "stands for. Opt-in; --lookalikes requires look-alikes for every vocabulary object.",
+    help="Weigh p(o|r) by how well each ROI's top ImageNet classes fit the classes each object's photos get "
+         "(the bundle's object_lookalikes.json; grounding/lookalike_cue.py). Opt-in (off by default: it did not "
+         "make CRAFT-E choose better on the dev scenes, docs/recognition.md); --lookalikes requires look-alikes "
+         "for every vocabulary object.",
     show_default=False)]
 RelocateOpt = Annotated[bool, typer.Option(
     help="Before a pick, move the chosen grasp a few cm along its object (or turn it) when the overhead depth "

@@ -68,11 +68,11 @@ class GroundingSettings(BaseModel):
     #: plate are not the colours a typical one is), so it is not the default
     #: (``docs/recognition.md``).
     colour_cue: bool | None = None
-    #: The image encoder links ImageNet classes to the vocabulary names whose photos get them (the
-    #: bundle's ``object_lookalikes.json``; ``encoders/conse.py``, ``link_class_embeddings``), so
-    #: ``p(o | r)`` reads a look-alike class as the object it stands for. A perception setting:
-    #: the evaluations build their one shared encoder from it. Opt-in: ``True`` turns it on (a
-    #: bundle without look-alikes for every vocabulary name is an error); ``None``/``False``: off.
+    #: p(o | r) also weighs each ROI's top ImageNet classes against the classes each object's
+    #: photos get (the bundle's ``object_lookalikes.json``; ``grounding/lookalike_cue.py``).
+    #: Opt-in: ``True`` turns it on (a bundle without look-alikes for every vocabulary name is an
+    #: error); ``None``/``False``: off. It names rendered objects better but did not make CRAFT-E
+    #: choose better on the dev scenes (``docs/recognition.md``).
     lookalikes: bool | None = None
 
     @field_validator("temperature", mode="before")

@@ -2,9 +2,9 @@
 
 The compiler writes one entry per object that an ``object_lookalike`` record answers: up to five
 ImageNet-1k class names with the share of photos of a typical instance expected to get each. The
-runtime links those classes to the object's name in the ConSE encoder (``encoders/conse.py``); a
-malformed entry would silently skew every image embedding, so each is refused here naming the
-file, the object and the fault.
+runtime's look-alike cue weighs an ROI's classes against them (``grounding/lookalike_cue.py``); a
+malformed entry would silently skew ``p(o | r)``, so each is refused here naming the file, the
+object and the fault.
 """
 
 from __future__ import annotations
