@@ -231,3 +231,23 @@ def test_the_service_takes_the_classifiers_classes() -> None:
     assert p_cued["stapler"] > p_plain.get("stapler", 0.0)  # a class the stapler's photos get
     assert bad.status_code == 422 and bad.json()["detail"][0]["loc"][-1] == "imagenet_classes"
     assert no_vocabulary.status_code == 422 and "objects" in no_vocabulary.text
+
+
+def test_craft_ground_takes_lookalikes_over_a_covered_vocabulary(tmp_path: Path) -> None:
+    """``craft ground --lookalikes``: the crops' classes come from the embedding's pass; a vocabulary
+    the bundle has no look-alikes for exits 2 naming the fix."""
+    from runtime_fixtures import shared_image
+    from typer.testing import CliRunner
+
+    from craft_e.paths import VOCAB_DIR
+    from craft_e.runtime.cli.main import app
+
+    base = ["ground", "--kb", str(KB_DIR / "craft-e-default"), "--verb", "pour", "--image", str(shared_image("teapot")),
+            "--box", "0,0,200,200", "--box", "100,50,250,250", "--threads", "1", "--lookalikes"]
+    out = tmp_path / "g.json"
+    ok = CliRunner().invoke(app, [*base, "--vocab", str(VOCAB_DIR / "sim_objects.txt"), "--json", str(out)])
+    assert ok.exit_code == 0, ok.output
+    assert "look-alike cue" in ok.output and "the image classifier saw:" in ok.output
+    assert json.loads(out.read_text())["lookalike_cue_used"] is True
+    missing = CliRunner().invoke(app, base)  # the KB's 628 objects: most have no look-alike answer
+    assert missing.exit_code == 2 and "craftc curate pending --prompt object_lookalike" in missing.output

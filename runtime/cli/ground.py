@@ -27,6 +27,7 @@ from .common import (
     out,
     read_names,
 )
+from .episodes import LookalikesOpt
 
 if TYPE_CHECKING:
     from ..perception.roi import BoxSpec
@@ -104,6 +105,7 @@ def ground(
     clip_sha256: Annotated[str | None, typer.Option(help="Expected sha256 of --clip-weights.")] = None,
     trusted_key: Annotated[list[Path] | None, typer.Option("--trusted-key", help="Signer key for a .craft package.")] = None,
     threads: Annotated[int | None, typer.Option(min=1, help="Torch threads for the image encoder (1 is fastest on busy hosts).")] = None,
+    lookalikes: LookalikesOpt = None,
 ) -> None:
     """Rank ROIs of an image for a verb and explain the choice (no network access)."""
     import numpy as np
@@ -124,7 +126,7 @@ def ground(
     vocabulary = read_names(vocab, "vocabulary") if vocab is not None else None
     settings = grounding_settings(alpha=alpha, beta=beta, gamma=gamma, temperature=temperature,
                                   aff_mode=aff_mode, energy_form=energy_form, open_vocab=open_vocab,
-                                  vocabulary=vocabulary)
+                                  vocabulary=vocabulary, lookalikes=lookalikes)
     try:
         specs = [BoxSpec(parse_box(b)) for b in box] if box else read_rois_file(rois) if rois else []
     except ValueError as exc:
