@@ -677,6 +677,11 @@ def curate_record(
     stdout.print(
         f"stored {result.stored} records, {result.unchanged} unchanged, {len(result.skipped)} skipped"
     )
+    if result.not_stored:  # a script must notice: these answers are not in the cache
+        err.print(f"{result.not_stored} answer(s) of {answers} were not stored: their subject is in neither "
+                  "--verbs nor --objects; pass the files that name them and run again (stored answers stay "
+                  "as they are)", highlight=False, markup=False)
+        raise typer.Exit(EXIT_CHECK_FAILED)
 
 
 @curate_app.command("pending")

@@ -74,6 +74,9 @@ class CurationResult:
     stored: int
     unchanged: int
     skipped: list[str]
+    #: answers not stored because their subject is in neither the verbs nor the objects file
+    #: (also listed in ``skipped``); "already recorded" skips are not counted
+    not_stored: int = 0
 
 
 def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
@@ -275,6 +278,7 @@ def record_answers(
                 f"{where}: {'.'.join(map(str, first['loc']))}: {first['msg']}"
             ) from None
         ready.append((where, _record(source, call, payload, note)))
+    result.not_stored = len(unknown)
     result.skipped.extend(f"{line}: not stored (pass the --verbs / --objects file that names it)"
                           for line in unknown)
     first_line: dict[str, str] = {}

@@ -149,7 +149,7 @@ def test_curate_then_build_then_validate(kb_a: FixtureKB, tmp_path: Path) -> Non
 def test_curate_never_rewrites_and_stores_all_or_nothing(tmp_path: Path) -> None:
     """A revised answer to a recorded prompt is refused (stored answers are never rewritten), a
     bad line stores none of the file, two answers to one prompt are refused, and a verb outside
-    the verbs file is skipped and named."""
+    the verbs file is named and fails the run (exit 1) without undoing what was stored."""
     cache = tmp_path / "cache"
     args: list[str | Path] = ["--prompt", "verb_properties", "--verbs", KB_SMALL / "verbs.txt",
                               "--cache", cache, "--prompts", "v1"]
@@ -176,7 +176,9 @@ def test_curate_never_rewrites_and_stores_all_or_nothing(tmp_path: Path) -> None
         assert {p.name: p.read_bytes() for p in (cache / LLM_SOURCE).iterdir()} == stored  # nothing stored
     unknown = cut.replace('"cut"', '"whittle"')
     result = record(scoop, unknown)
-    assert result.exit_code == 0 and ":2: 'whittle' is not in the verbs file" in flat(result.output)
+    # the known answer is stored (here: already was), the unknown one named and the run fails
+    assert result.exit_code == 1 and ":2: 'whittle' is not in the verbs file" in flat(result.output)
+    assert "1 answer(s) of" in flat(result.output) and "were not stored" in flat(result.output)
     assert "stored 0 records, 1 unchanged, 1 skipped" in result.stdout
     assert {p.name: p.read_bytes() for p in (cache / LLM_SOURCE).iterdir()} == stored
 
