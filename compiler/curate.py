@@ -58,12 +58,12 @@ def _check_classes(answer: ObjectLookalikes, where: str) -> None:
     """Every class an ``object_lookalike`` answer names must be one the classifier can output."""
     import difflib
 
-    from ..runtime.encoders.conse import imagenet_class_names
+    from ..runtime.encoders.conse import imagenet_class_index
 
-    known = imagenet_class_names()
+    known = imagenet_class_index()
     for entry in answer.classes:
         if entry.imagenet_class not in known:
-            close = difflib.get_close_matches(entry.imagenet_class, known, n=3, cutoff=0.6)
+            close = difflib.get_close_matches(entry.imagenet_class, list(known), n=3, cutoff=0.6)
             hint = f"did you mean {', '.join(repr(c) for c in close)}?" if close else (
                 "write a name exactly as in runtime/encoders/imagenet_classes.txt")
             raise CurationError(f"{where}: {entry.imagenet_class!r} is not an ImageNet-1k class name; {hint}")

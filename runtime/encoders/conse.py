@@ -56,6 +56,16 @@ def imagenet_class_names() -> tuple[str, ...]:
     return names
 
 
+@cache
+def imagenet_class_index() -> dict[str, int]:
+    """Each class name's index in logit order (a name two classes share: the first), built once:
+    requests and answers name classes, the runtime carries indices."""
+    index: dict[str, int] = {}
+    for i, name in enumerate(imagenet_class_names()):
+        index.setdefault(name, i)
+    return index
+
+
 def _class_list_sha256(names: Sequence[str]) -> str:
     return hashlib.sha256("\n".join(names).encode()).hexdigest()
 

@@ -25,7 +25,7 @@ from ...schemas.v1.bundle import (
     Manifest,
 )
 from ...schemas.v1.graph import KnowledgeGraph
-from ..encoders.conse import imagenet_class_names
+from ..encoders.conse import imagenet_class_index
 from .colours import COLOURS_FILE, TypicalColours, parse_colours
 from .lookalikes import LOOKALIKES_FILE, Lookalikes, parse_lookalikes
 from .sizes import SIZES_FILE, SizesError, TypicalSize, parse_sizes
@@ -155,7 +155,7 @@ def load_bundle(
         colours = (parse_colours(folder, data[COLOURS_FILE], manifest.objects)
                    if COLOURS_FILE in data else {})
         lookalikes = (parse_lookalikes(folder, data[LOOKALIKES_FILE], manifest.objects,
-                                       frozenset(imagenet_class_names()))
+                                       imagenet_class_index().keys())
                       if LOOKALIKES_FILE in data else {})
     except SizesError as exc:  # ColoursError and LookalikesError are ones
         raise BundleError(str(exc)) from None

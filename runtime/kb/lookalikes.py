@@ -10,6 +10,7 @@ object and the fault.
 from __future__ import annotations
 
 import math
+from collections.abc import Set
 from pathlib import Path
 
 from .sizes import SizesError, object_entries
@@ -24,7 +25,7 @@ class LookalikesError(SizesError):
 
 
 def parse_lookalikes(folder: Path, blob: bytes, objects: list[str],
-                     class_names: frozenset[str] | None = None) -> dict[str, Lookalikes]:
+                     class_names: Set[str] | None = None) -> dict[str, Lookalikes]:
     """The look-alikes in ``blob`` by object name; every name must be one of the bundle's
     ``objects`` and, when ``class_names`` is given, every class one of them."""
     where = folder / LOOKALIKES_FILE

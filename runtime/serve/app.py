@@ -171,10 +171,9 @@ def _check_classes(values: dict[str, float] | None) -> dict[str, float] | None:
     """An ROI's ImageNet classes: names the classifier can output, probabilities in [0, 1]."""
     if values is None:
         return None
-    from ..encoders.conse import CLASS_TOP_K, imagenet_class_names
+    from ..encoders.conse import CLASS_TOP_K, imagenet_class_index
 
-    known = set(imagenet_class_names())
-    unknown = sorted(set(values) - known)
+    unknown = sorted(set(values) - imagenet_class_index().keys())
     if unknown:
         raise ValueError(f"imagenet_classes {unknown[:3]}: not ImageNet-1k class names of the image encoder")
     if not 1 <= len(values) <= CLASS_TOP_K:
@@ -188,9 +187,9 @@ def _class_top(values: dict[str, float] | None) -> tuple[tuple[int, float], ...]
     """A request's classes as the runtime carries them: (class index, probability), most probable first."""
     if values is None:
         return None
-    from ..encoders.conse import imagenet_class_names
+    from ..encoders.conse import imagenet_class_index
 
-    index = {name: i for i, name in reversed(list(enumerate(imagenet_class_names())))}  # first of a shared name
+    index = imagenet_class_index()
     return tuple(sorted(((index[n], float(p)) for n, p in values.items()), key=lambda cp: (-cp[1], cp[0])))
 
 
