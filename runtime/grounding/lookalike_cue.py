@@ -18,8 +18,8 @@ these renders, so no name can be ruled out); ``κ = 1``: one crop is one observa
 How the constants were set (``docs/recognition.md``): the cue's first form, moving ConSE's class
 embeddings toward the linked names, was fixed before any measurement and raised top-1 on the
 recognition renders by 1–2 points only; this product form was then compared on the same renders
-for λ ∈ {0.25, 0.5, 0.75, 0.9} and κ ∈ {0.5, 1}, and λ = 0.5, κ = 1 taken from the plateau
-(λ 0.25 and 0.5 tie on top-1 with the size cue).
+for λ ∈ {0.25, 0.5, 0.75, 0.9} and κ ∈ {0.5, 1} (``benchmarks/bench_lookalike_lambda.py``), and
+λ = 0.5, κ = 1 taken from the plateau.
 """
 
 from __future__ import annotations
@@ -48,8 +48,9 @@ class LookalikeCueUnavailableError(CueUnavailableError):
 
 
 def lookalike_table(names: Sequence[str], lookalikes: Mapping[str, Sequence[tuple[str, float]]],
-                    class_names: Sequence[str]) -> FloatArray | None:
-    """``(1 - λ) q(c | o) + λ / C`` ``[O, C]`` for ``names`` in order, or ``None`` when any name has
+                    class_names: Sequence[str], lam: float = LAMBDA) -> FloatArray | None:
+    """``(1 - λ) q(c | o) + λ / C`` ``[O, C]`` for ``names`` in order (λ = ``lam``; the grounder
+    uses ``LAMBDA``, ``benchmarks/bench_lookalike_lambda.py`` others), or ``None`` when any name has
     no recorded look-alikes (a cue over part of the vocabulary would favour the others). Every
     row sums to one. A class name shared by two classes ('crane') splits its share between them."""
     if not names or any(n not in lookalikes for n in names):
@@ -64,12 +65,13 @@ def lookalike_table(names: Sequence[str], lookalikes: Mapping[str, Sequence[tupl
             for i in rows[cls]:
                 q[o, i] += share / len(rows[cls])
         q[o] += (1.0 - q[o].sum()) / n_classes  # the unnamed rest: any class
-    table: FloatArray = ((1.0 - LAMBDA) * q + LAMBDA / n_classes).astype(np.float32)
+    table: FloatArray = ((1.0 - lam) * q + lam / n_classes).astype(np.float32)
     return table
 
 
-def lookalike_log_likelihood(classes: Sequence[ClassTop | None], table: FloatArray) -> FloatArray:
-    """``[N, O]`` ``κ log L(r | o)`` of each ROI's top classes under each object's expected
+def lookalike_log_likelihood(classes: Sequence[ClassTop | None], table: FloatArray,
+                             kappa: float = KAPPA) -> FloatArray:
+    """``[N, O]`` ``κ log L(r | o)`` (κ = ``kappa``) of each ROI's top classes under each object's expected
     classes; an ROI without classes (another encoder): 0 for every name, the cue is neutral."""
     out = np.zeros((len(classes), table.shape[0]), dtype=np.float64)
     for n, top in enumerate(classes):
@@ -77,5 +79,5 @@ def lookalike_log_likelihood(classes: Sequence[ClassTop | None], table: FloatArr
             continue
         idx = np.array([c for c, _ in top], dtype=np.int64)
         p = np.array([v for _, v in top], dtype=np.float64)
-        out[n] = KAPPA * np.log(np.maximum(p @ table[:, idx].astype(np.float64).T, 1e-300))
+        out[n] = kappa * np.log(np.maximum(p @ table[:, idx].astype(np.float64).T, 1e-300))
     return out.astype(np.float32)
