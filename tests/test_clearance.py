@@ -79,6 +79,24 @@ def test_the_grasped_surface_itself_does_not_block_the_hand() -> None:
     assert hand_hits(tcp, 0.0, boxes, taller, CFG) is not None
 
 
+def test_a_sliver_two_millimetres_above_the_finger_tips_does_not_block_them() -> None:
+    """A table-level grasp puts the finger tips 2 mm above the table (TCP 15.6 mm up). A thin
+    edge outside the chosen region, 3.5 mm high, under an open finger would stop it 1.5 mm short
+    of its depth, which is harmless: it does not block (``margin`` -2 mm); a 5 mm edge does."""
+    tcp = np.array([0.0, 0.0, 0.0156])
+    finger = next(b for b in PANDA.clearance_boxes if b.mirrored)
+    under_finger = 0.5 * (finger.y_lo + finger.y_hi)  # along the closing axis (x at yaw 0)
+    bottom = float(tcp[2]) + finger.z_lo
+    sliver = HeightMap(block(under_finger - 0.003, under_finger + 0.003, -0.005, 0.005, bottom + 0.0015),
+                       CFG.cell, 0.0)
+    assert CFG.margin == pytest.approx(-0.002)
+    assert hand_hits(tcp, 0.0, (finger,), sliver, CFG) is None
+    assert hand_hits(tcp, 0.0, (finger,), sliver, ClearanceConfig(margin=0.0)) is not None
+    edge = HeightMap(block(under_finger - 0.003, under_finger + 0.003, -0.005, 0.005, bottom + 0.0025),
+                     CFG.cell, 0.0)
+    assert hand_hits(tcp, 0.0, (finger,), edge, CFG) is not None
+
+
 def test_arm_capsules_touch_only_surfaces_within_their_radius() -> None:
     hm = HeightMap(block(0.20, 0.26, -0.03, 0.03, 0.22), CFG.cell, 0.0)  # a tall bottle
     low = np.array([[0.0, 0.0, 0.25], [0.45, 0.0, 0.25]])  # forearm 3 cm above its top

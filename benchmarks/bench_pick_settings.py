@@ -1,0 +1,126 @@
+"""Benchmark: one object's episodes of ``craft eval sim``, re-run with other pick settings.
+
+Why: an execution failure that repeats on one object (the wrench's "lost the grip while lifting")
+is a question about pick settings, and answering it with the full evaluation costs half an
+hour. This re-runs exactly the evaluation's episodes whose target is ``--target`` (the same
+scenes, the same perception and grounding, CRAFT-E only, the same single-attempt pick), once per
+setting, and prints each episode's outcome side by side. Scenes come from the whole labels file
+(a verb's distractors depend on all its affording objects), so episode ids and scenes are those
+of ``craft eval sim``.
+
+Run: ``.venv/bin/python benchmarks/bench_pick_settings.py --target adjustable_wrench
+--setting 0.004,0 --setting 0.002,-0.002 [--labels FILE ...] [--jobs 2] [--json OUT]``; a setting
+is ``PickConfig.table_clearance,ClearanceConfig.margin`` in metres (default: the defaults).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from collections import Counter
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+from craft_e.arguments import output_file, positive_int
+from craft_e.paths import SIM_DEV_LABELS, SIM_VAL_LABELS
+from craft_e.runtime.evaluation.parallel import ordered_map
+from craft_e.runtime.evaluation.sim_eval import (
+    EpisodeSpec,
+    build_grounders,
+    default_encoder,
+    episode_record,
+    load_methods,
+    load_sim_labels,
+    make_episode_specs,
+    select_methods,
+)
+from craft_e.runtime.grounding.grounder import Grounder
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.sim.env import EnvConfig
+from craft_e.runtime.sim.episode import sim_configs
+from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
+
+METHOD = "CRAFT-E"
+
+
+def target_specs(labels: list[Path], target: str) -> list[EpisodeSpec]:
+    """The evaluation's episodes (3 layouts, seed 0) of every pair whose assets include ``target``."""
+    specs: list[EpisodeSpec] = []
+    for path in labels:
+        loaded = load_sim_labels(path)
+        pairs = tuple(pair for pair in loaded.pairs if target in pair.assets)
+        specs += [s for s in make_episode_specs(dataclasses.replace(loaded, pairs=pairs), layouts=3, seed=0)
+                  if s.scene.target == target]
+    return specs
+
+
+def _context(threads: int) -> tuple[dict[str, Grounder], Any]:
+    encoder = default_encoder(threads)
+    runnable, _ = load_methods(select_methods([METHOD]), encoder.text_encoder_id)
+    return build_grounders(runnable, GroundingSettings(), sim_vocabulary()), encoder
+
+
+def _episode(config: PipelineConfig, env_config: EnvConfig, context: tuple[dict[str, Grounder], Any],
+             spec: EpisodeSpec) -> dict[str, Any]:
+    from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.pipeline import run_episode
+
+    grounders, encoder = context
+    with SimEnv(env_config) as env:
+        result = run_episode(env, spec.scene, grounders, encoder, config)
+    record = episode_record(spec, result, config.detect_iou)["methods"][METHOD]
+    return {"id": spec.id, "failure": record["failure"], "chosen_object": record["chosen_object"],
+            "detail": record["pick_detail"]}
+
+
+def parse_setting(text: str) -> dict[str, float]:
+    """``"0.004,0"`` -> ``{"table_clearance": 0.004, "clearance_margin": 0.0}``."""
+    try:
+        clearance, margin = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected TABLE_CLEARANCE,MARGIN in metres, "
+                                         "e.g. 0.004,0") from None
+    return {"table_clearance": clearance, "clearance_margin": margin}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--target", required=True, help="asset id, e.g. adjustable_wrench")
+    parser.add_argument("--labels", type=Path, action="append", default=None,
+                        help="labels file (repeatable; default: sim-dev and sim-val)")
+    parser.add_argument("--setting", type=parse_setting, action="append", default=None,
+                        help="TABLE_CLEARANCE,MARGIN in metres (repeatable; default: the defaults)")
+    parser.add_argument("--jobs", type=positive_int, default=2)
+    parser.add_argument("--json", type=output_file, default=None)
+    args = parser.parse_args()
+
+    specs = target_specs(args.labels or [SIM_DEV_LABELS, SIM_VAL_LABELS], args.target)
+    if not specs:
+        parser.error(f"no episode of the labels has target {args.target!r} (use an asset id)")
+    env_config, pick, fingers = sim_configs("panda", wrist_look=True)
+    runs: list[dict[str, Any]] = []
+    default = {"table_clearance": pick.table_clearance, "clearance_margin": pick.clearance.margin}
+    for setting in args.setting or [default]:
+        varied = dataclasses.replace(pick, table_clearance=setting["table_clearance"],
+                                     clearance=dataclasses.replace(pick.clearance, margin=setting["clearance_margin"]))
+        config = PipelineConfig(pick=varied, fingers=fingers)
+        episodes = list(ordered_map(partial(_episode, config, env_config), specs, jobs=args.jobs,
+                                    build=partial(_context, 1)))
+        counts = Counter(e["failure"] for e in episodes)
+        runs.append({"setting": setting, "outcomes": dict(counts), "episodes": episodes})
+        print(f"table_clearance {setting['table_clearance']:.4f} m, clearance margin "
+              f"{setting['clearance_margin']:+.4f} m: " + ", ".join(f"{k} {v}" for k, v in counts.most_common()))
+    print("| episode | " + " | ".join(f"{r['setting']['table_clearance'] * 1000:g} mm / "
+                                       f"{r['setting']['clearance_margin'] * 1000:+g} mm" for r in runs) + " |")
+    print("|---|" + "---|" * len(runs))
+    for i, spec in enumerate(specs):
+        print(f"| {spec.id} | " + " | ".join(r["episodes"][i]["failure"] for r in runs) + " |")
+    if args.json is not None:
+        args.json.write_text(json.dumps({"target": args.target, "episodes": len(specs), "method": METHOD,
+                                         "runs": runs}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
