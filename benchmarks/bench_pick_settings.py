@@ -28,19 +28,15 @@ from craft_e.paths import SIM_DEV_LABELS, SIM_VAL_LABELS
 from craft_e.runtime.evaluation.parallel import ordered_map
 from craft_e.runtime.evaluation.sim_eval import (
     EpisodeSpec,
-    build_grounders,
-    default_encoder,
-    episode_record,
-    load_methods,
+    _run_one,
+    _worker_context,
     load_sim_labels,
     make_episode_specs,
     select_methods,
 )
-from craft_e.runtime.grounding.grounder import Grounder
 from craft_e.runtime.grounding.settings import GroundingSettings
-from craft_e.runtime.sim.env import EnvConfig
 from craft_e.runtime.sim.episode import sim_configs
-from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
+from craft_e.runtime.sim.pipeline import PipelineConfig
 
 METHOD = "CRAFT-E"
 
@@ -56,23 +52,11 @@ def target_specs(labels: list[Path], target: str) -> list[EpisodeSpec]:
     return specs
 
 
-def _context(threads: int) -> tuple[dict[str, Grounder], Any]:
-    encoder = default_encoder(threads)
-    runnable, _ = load_methods(select_methods([METHOD]), encoder.text_encoder_id)
-    return build_grounders(runnable, GroundingSettings(), sim_vocabulary()), encoder
-
-
-def _episode(config: PipelineConfig, env_config: EnvConfig, context: tuple[dict[str, Grounder], Any],
-             spec: EpisodeSpec) -> dict[str, Any]:
-    from craft_e.runtime.sim.env import SimEnv
-    from craft_e.runtime.sim.pipeline import run_episode
-
-    grounders, encoder = context
-    with SimEnv(env_config) as env:
-        result = run_episode(env, spec.scene, grounders, encoder, config)
-    record = episode_record(spec, result, config.detect_iou)["methods"][METHOD]
-    return {"id": spec.id, "failure": record["failure"], "chosen_object": record["chosen_object"],
-            "detail": record["pick_detail"]}
+def _outcome(record: dict[str, Any]) -> dict[str, Any]:
+    """The part of an episode record (``sim_eval.episode_record``) this benchmark reports."""
+    method = record["methods"][METHOD]
+    return {"id": record["id"], "failure": method["failure"], "chosen_object": method["chosen_object"],
+            "detail": method["pick_detail"]}
 
 
 def parse_setting(text: str) -> dict[str, float]:
@@ -106,8 +90,10 @@ def main() -> None:
         varied = dataclasses.replace(pick, table_clearance=setting["table_clearance"],
                                      clearance=dataclasses.replace(pick.clearance, margin=setting["clearance_margin"]))
         config = PipelineConfig(pick=varied, fingers=fingers)
-        episodes = list(ordered_map(partial(_episode, config, env_config), specs, jobs=args.jobs,
-                                    build=partial(_context, 1)))
+        # the evaluation's own worker set-up and episode runner (``craft eval sim``), CRAFT-E only
+        records = ordered_map(partial(_run_one, config, env_config, None), specs, jobs=args.jobs,
+                              build=partial(_worker_context, select_methods([METHOD]), 1, GroundingSettings()))
+        episodes = [_outcome(r) for r in records]
         counts = Counter(e["failure"] for e in episodes)
         runs.append({"setting": setting, "outcomes": dict(counts), "episodes": episodes})
         print(f"table_clearance {setting['table_clearance']:.4f} m, clearance margin "
