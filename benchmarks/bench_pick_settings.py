@@ -56,7 +56,7 @@ def _outcome(record: dict[str, Any]) -> dict[str, Any]:
     """The part of an episode record (``sim_eval.episode_record``) this benchmark reports."""
     method = record["methods"][METHOD]
     return {"id": record["id"], "failure": method["failure"], "chosen_object": method["chosen_object"],
-            "detail": method["pick_detail"]}
+            "detail": method["pick_detail"], "relocation": method.get("relocation", "")}
 
 
 def parse_setting(text: str) -> dict[str, float]:

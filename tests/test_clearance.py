@@ -79,10 +79,10 @@ def test_the_grasped_surface_itself_does_not_block_the_hand() -> None:
     assert hand_hits(tcp, 0.0, boxes, taller, CFG) is not None
 
 
-def test_a_sliver_two_millimetres_above_the_finger_tips_does_not_block_them() -> None:
-    """A table-level grasp puts the finger tips 2 mm above the table (TCP 15.6 mm up). A thin
-    edge outside the chosen region, 3.5 mm high, under an open finger would stop it 1.5 mm short
-    of its depth, which is harmless: it does not block (``margin`` -2 mm); a 5 mm edge does."""
+def test_a_surface_less_than_two_millimetres_above_a_box_bottom_does_not_block() -> None:
+    """``margin`` -2 mm: a surface that would stop a hand box 1.5 mm short of its planned depth
+    is harmless and does not block; one 2.5 mm above the box's bottom does (with margin 0 both
+    block). Checked on an open finger of a table-level grasp (TCP 15.6 mm above the table)."""
     tcp = np.array([0.0, 0.0, 0.0156])
     finger = next(b for b in PANDA.clearance_boxes if b.mirrored)
     under_finger = 0.5 * (finger.y_lo + finger.y_hi)  # along the closing axis (x at yaw 0)

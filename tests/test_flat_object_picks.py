@@ -1,7 +1,8 @@
 """Flat objects are squeezed across their sides, not down on their top edges.
 
 Why: the YCB adjustable wrench lies ~1 cm thick with rounded edges. With the finger tips stopped
-4 mm above the table, the pads met the handle's upper edges (contact normals tilted 30-70° up),
+4 mm above the table, the pads met the handle's upper edges (contact normals tilted 27-89° up,
+``benchmarks/probe_pad_contacts.py``),
 so closing pressed the wrench into the table and the lift left it behind: in the dev episodes
 where CRAFT-E chose the wrench, 3 of 16 picks succeeded. ``PickConfig.table_clearance`` is now
 2 mm. The grasps below are GR-ConvNet's chosen grasps of two dev episodes

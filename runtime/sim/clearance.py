@@ -74,10 +74,10 @@ class ClearanceConfig:
     sample_step: float = 0.01  # m between points sampled on hand boxes and arm segments
     arm_radius: float = 0.05  # m: the CR3 forearm and wrist links are ~9 cm thick
     # m: surfaces this close below a box's bottom count as touching; negative: surfaces up to
-    # this far above it do not. The fingers of a table-level grasp come down 2 mm above the table
-    # (``PickConfig.table_clearance``), so a sliver of a thin object's edge outside the chosen
-    # region, 3-4 mm high, would block every spot of it, while stopping 2 mm short of the
-    # planned depth is harmless (the README demo's knife: docs/results/sim_execution.md).
+    # this far above it do not (the hand would come down that much short of its planned depth,
+    # which is harmless). When the finger tips were lowered from 4 to 2 mm above the table
+    # (``PickConfig.table_clearance``), a surface the hand's body had cleared left the README
+    # demo's knife without a clear spot for relocation (docs/results/sim_execution.md).
     margin: float = -0.002
     path_samples: int = 8  # configurations checked on the joint path to the pre-grasp
     arm_joints: tuple[str, ...] = ("joint3", "joint4", "joint5", "joint6", "flange_to_hand")
