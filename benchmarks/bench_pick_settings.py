@@ -10,7 +10,9 @@ of ``craft eval sim``.
 
 Run: ``.venv/bin/python benchmarks/bench_pick_settings.py --target adjustable_wrench
 --setting 0.004,0 --setting 0.002,-0.002 [--labels FILE ...] [--jobs 2] [--json OUT]``; a setting
-is ``PickConfig.table_clearance,ClearanceConfig.margin`` in metres (default: the defaults).
+is ``PickConfig.table_clearance,ClearanceConfig.margin`` in metres (default: the defaults),
+optionally followed by ``,off`` or ``,SCALE``: the antipodal grasp fallback off, or on with its
+scores times SCALE (``FallbackConfig.quality_scale``; omitted: the default, on at 1).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from craft_e.runtime.evaluation.sim_eval import (
 )
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.sim.episode import sim_configs
+from craft_e.runtime.sim.fallback import FallbackConfig
 from craft_e.runtime.sim.pipeline import PipelineConfig
 
 METHOD = "CRAFT-E"
@@ -56,17 +59,32 @@ def _outcome(record: dict[str, Any]) -> dict[str, Any]:
     """The part of an episode record (``sim_eval.episode_record``) this benchmark reports."""
     method = record["methods"][METHOD]
     return {"id": record["id"], "failure": method["failure"], "chosen_object": method["chosen_object"],
-            "detail": method["pick_detail"], "relocation": method.get("relocation", "")}
+            "detail": method["pick_detail"], "relocation": method.get("relocation", ""),
+            "choice_error": method["choice_error"]}
 
 
-def parse_setting(text: str) -> dict[str, float]:
-    """``"0.004,0"`` -> ``{"table_clearance": 0.004, "clearance_margin": 0.0}``."""
+def parse_setting(text: str) -> dict[str, float | None]:
+    """``"0.004,0"`` -> ``{"table_clearance": 0.004, "clearance_margin": 0.0, "fallback": 1.0}``;
+    a third field ``off`` (``"fallback": None``) or a number sets the grasp fallback."""
+    fields = text.split(",")
     try:
-        clearance, margin = (float(v) for v in text.split(","))
+        if len(fields) not in (2, 3):
+            raise ValueError
+        clearance, margin = float(fields[0]), float(fields[1])
+        third = fields[2].strip() if len(fields) == 3 else "1"
+        fallback = None if third == "off" else float(third)
+        if fallback is not None:
+            FallbackConfig(quality_scale=fallback)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected TABLE_CLEARANCE,MARGIN in metres, "
-                                         "e.g. 0.004,0") from None
-    return {"table_clearance": clearance, "clearance_margin": margin}
+        raise argparse.ArgumentTypeError(f"{text!r}: expected TABLE_CLEARANCE,MARGIN[,off|SCALE] (metres; "
+                                         "SCALE in (0, 1]), e.g. 0.004,0 or 0.002,-0.002,off") from None
+    return {"table_clearance": clearance, "clearance_margin": margin, "fallback": fallback}
+
+
+def _label(setting: dict[str, Any]) -> str:
+    fallback = "fallback off" if setting.get("fallback") is None else f"fallback x{setting['fallback']:g}"
+    return (f"{setting['table_clearance'] * 1000:g} mm / {setting['clearance_margin'] * 1000:+g} mm / "
+            f"{fallback}")
 
 
 def main() -> None:
@@ -85,21 +103,22 @@ def main() -> None:
         parser.error(f"no episode of the labels has target {args.target!r} (use an asset id)")
     env_config, pick, fingers = sim_configs("panda", wrist_look=True)
     runs: list[dict[str, Any]] = []
-    default = {"table_clearance": pick.table_clearance, "clearance_margin": pick.clearance.margin}
+    default = {"table_clearance": pick.table_clearance, "clearance_margin": pick.clearance.margin,
+               "fallback": FallbackConfig().quality_scale}
     for setting in args.setting or [default]:
         varied = dataclasses.replace(pick, table_clearance=setting["table_clearance"],
                                      clearance=dataclasses.replace(pick.clearance, margin=setting["clearance_margin"]))
-        config = PipelineConfig(pick=varied, fingers=fingers)
+        scale = setting["fallback"]
+        fallback = FallbackConfig(enabled=False) if scale is None else FallbackConfig(quality_scale=scale)
+        config = PipelineConfig(pick=varied, fingers=fingers, fallback=fallback)
         # the evaluation's own worker set-up and episode runner (``craft eval sim``), CRAFT-E only
         records = ordered_map(partial(_run_one, config, env_config, None), specs, jobs=args.jobs,
                               build=partial(_worker_context, select_methods([METHOD]), 1, GroundingSettings()))
         episodes = [_outcome(r) for r in records]
         counts = Counter(e["failure"] for e in episodes)
         runs.append({"setting": setting, "outcomes": dict(counts), "episodes": episodes})
-        print(f"table_clearance {setting['table_clearance']:.4f} m, clearance margin "
-              f"{setting['clearance_margin']:+.4f} m: " + ", ".join(f"{k} {v}" for k, v in counts.most_common()))
-    print("| episode | " + " | ".join(f"{r['setting']['table_clearance'] * 1000:g} mm / "
-                                       f"{r['setting']['clearance_margin'] * 1000:+g} mm" for r in runs) + " |")
+        print(f"{_label(setting)}: " + ", ".join(f"{k} {v}" for k, v in counts.most_common()))
+    print("| episode | " + " | ".join(_label(r["setting"]) for r in runs) + " |")
     print("|---|" + "---|" * len(runs))
     for i, spec in enumerate(specs):
         print(f"| {spec.id} | " + " | ".join(r["episodes"][i]["failure"] for r in runs) + " |")

@@ -35,6 +35,7 @@ def eval_sim(
     gripper: ep.GripperOpt = "panda",
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
+    grasp_fallback: ep.GraspFallbackOpt = True,
     clearance: ep.ClearanceOpt = False,
     relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
@@ -50,6 +51,7 @@ def eval_sim(
     from ..grounding.size_cue import CueUnavailableError
     from ..sim.assets import SharedAssetsMissingError
     from ..sim.episode import sim_configs
+    from ..sim.fallback import FallbackConfig
     from ..sim.pipeline import PipelineConfig
     from ..sim.placement import PlacementError
     from ..sim.refine import RefineConfig
@@ -61,7 +63,8 @@ def eval_sim(
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers,
-                                refine=RefineConfig(enabled=refine_grasps))
+                                refine=RefineConfig(enabled=refine_grasps),
+                                fallback=FallbackConfig(enabled=grasp_fallback))
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)

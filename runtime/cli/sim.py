@@ -36,6 +36,7 @@ def demo(
     gripper: ep.GripperOpt = "panda",
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
+    grasp_fallback: ep.GraspFallbackOpt = True,
     clearance: ep.ClearanceOpt = False,
     relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
@@ -64,6 +65,7 @@ def demo(
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.env import SimEnv
     from ..sim.episode import sim_configs
+    from ..sim.fallback import FallbackConfig
     from ..sim.figures import FrameRecorder, describe, plot_episode
     from ..sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
     from ..sim.refine import RefineConfig
@@ -76,7 +78,8 @@ def demo(
                                                  landing_check, relocate=relocate)
         config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
                                 pick=pick, fingers=fingers,
-                                refine=RefineConfig(enabled=refine_grasps))
+                                refine=RefineConfig(enabled=refine_grasps),
+                                fallback=FallbackConfig(enabled=grasp_fallback))
         all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:
         fail(str(exc))

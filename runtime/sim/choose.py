@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder
     from ..grasp.geometry import TopDownGrasp
     from ..perception.observation import Observation
+    from ..perception.roi import Region
     from .env import SimEnv
     from .episode import PlanCache
     from .pipeline import PipelineConfig
@@ -64,6 +65,7 @@ class LazyROI:
     mask: npt.NDArray[np.bool_] | None = None
     material: npt.NDArray[np.float64] | None = None
     raw: Sequence[Any] = ()
+    region: Region | None = None  # the region itself, for the fallback's grasps (``sim/fallback.py``)
 
     def _checked_through(self, index: int) -> None:
         """Check grasps from ``unchecked`` until ``fitting[index]`` exists or none are left."""
@@ -141,7 +143,7 @@ def perceive_for_pick(
     from .clearance import heights_around
     from .pipeline import (
         _stage,
-        iter_fitting_with_refinements,
+        iter_fitting_with_fallback,
         raised_mask,
         raw_candidates,
         roi_colours,
@@ -177,8 +179,8 @@ def perceive_for_pick(
                                [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
                                measure_extents(material, table_z),
                                roi_colours(obs.rgb, raised, roi) if colours else None, classes[i],
-                               unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
-                               mask=roi.mask, material=material, raw=raw[i]))
+                               unchecked=iter_fitting_with_fallback(raw[i], roi, material, obs, table_z, config),
+                               mask=roi.mask, material=material, raw=raw[i], region=roi))
     return out
 
 
@@ -213,7 +215,7 @@ def relocate_choice(
     ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
     Costs one clearance check of the chosen pick when its approach is clear (and no IK plan,
     given the ``plans`` ``pick_reachable`` made)."""
-    from .pipeline import GraspCandidate, relocate_candidate, with_refinements
+    from .pipeline import GraspCandidate, fallback_candidates, relocate_candidate, with_refinements
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
     if not config.pick.clearance.relocate or roi.mask is None or roi.material is None:
@@ -226,7 +228,11 @@ def relocate_choice(
 
     def others() -> Iterator[TopDownGrasp]:  # only when the chosen grasp's own spots are all blocked
         assert roi.material is not None
-        listed = with_refinements(list(roi.raw), roi.material, obs, env.scene.layout.table_z, config)
+        table_z = env.scene.layout.table_z
+        listed = with_refinements(list(roi.raw), roi.material, obs, table_z, config)
+        if grasp.fallback and roi.region is not None:  # the evaluation listed the fallback's grasps too
+            listed += with_refinements(fallback_candidates(obs, roi.region, config), roi.material, obs, table_z,
+                                       config)
         yield from (c.pose for c in listed if c.pose is not None and not is_chosen(c.pose))
 
     return relocate_candidate(env, obs, roi.mask, roi.material, grasp, others(), config, plans)

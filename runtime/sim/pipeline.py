@@ -22,6 +22,9 @@ the depth, the predicted mask, its own kinematics):
    whose whole pick (pre-grasp, descent, lift, transport, release) has IK solutions. Its score is
    the ROI's grasp confidence, so ``E_grasp = -log(score)`` is the energy of a grasp the robot
    can execute; an ROI with no such grasp is excluded from grounding, as the paper prescribes.
+   When the fingers fit around none of a network's grasps on an ROI (no peak at all on a dice,
+   only sections wider than the hand), the antipodal sampler's grasps on the ROI are checked the
+   same way (``fallback.py``; ``PipelineConfig.fallback``).
    ``perceive`` checks every ROI (the evaluation reports each one's usable grasp); the robot's
    own path (``sim.choose``) plans IK only for the grasps grounding chooses, with the same result.
 4. **Embeddings** of the ROI crops (the ConSE image encoder), then ``Grounder.ground(verb, rois)``
@@ -54,9 +57,9 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from functools import cache
+from functools import cache, partial
 from typing import Any, Literal, get_args
 
 import numpy as np
@@ -75,6 +78,7 @@ from .assets import object_catalog
 from .clearance import HeightMap, heights_around, heights_excluding
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, PlanCache, execute_pick, pick_problems
+from .fallback import FallbackConfig, fallback_grasps
 from .fingers import FingerGeometry as FingerGeometry
 from .fingers import SurfacePoints
 from .fingers import finger_check as finger_check
@@ -89,6 +93,7 @@ BoolMask = npt.NDArray[np.bool_]
 GraspSource = Literal["grconvnet", "ggcnn", "ggcnn2", "antipodal", "oracle"]
 RoiSource = Literal["predicted", "oracle"]
 GRASP_SOURCES: tuple[str, ...] = get_args(GraspSource)
+NETWORK_SOURCES = ("grconvnet", "ggcnn", "ggcnn2")
 ROI_SOURCES: tuple[str, ...] = get_args(RoiSource)
 
 
@@ -136,6 +141,8 @@ class PipelineConfig:
     pick: PickConfig = field(default_factory=PickConfig)
     segment: SegmentConfig = field(default_factory=SegmentConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)  # turn / move misfitting grasps (refine.py)
+    #: antipodal grasps for a region no network grasp is usable on (fallback.py; network sources only)
+    fallback: FallbackConfig = field(default_factory=FallbackConfig)
 
     def __post_init__(self) -> None:
         if self.grasp not in GRASP_SOURCES:
@@ -155,7 +162,15 @@ class PipelineConfig:
             "torch_threads": self.torch_threads,
             "rgb_scale": self.rgb_scale,
             "refine_grasps": self.refine.enabled,
+            "grasp_fallback": self.uses_fallback,
         }
+
+    @property
+    def uses_fallback(self) -> bool:
+        """Whether regions without a usable network grasp get the antipodal fallback: only a
+        grasp network has one (the antipodal and oracle sources are their own), and only with
+        the grasp checks on (they decide what "usable" means)."""
+        return self.fallback.enabled and self.grasp in NETWORK_SOURCES and self.fit_filter
 
 
 @cache
@@ -185,6 +200,8 @@ class GraspCandidate:
     reachable: bool | None = None
     detail: str = ""
     blocked: str | None = None  # ClearanceConfig.prefer: what the approach of a passing grasp would touch
+    fallback: bool = False  # from the antipodal fallback (sim/fallback.py), not the network
+
 
     @property
     def quality(self) -> float:
@@ -312,6 +329,37 @@ def raw_candidates(
     return [_with_poses(obs, r) for r in rects]
 
 
+def fallback_candidates(obs: Observation, roi: Region, config: PipelineConfig) -> list[GraspCandidate]:
+    """The antipodal fallback's grasps on one region (``sim/fallback.py``), best first; empty when
+    the config has no fallback."""
+    if not config.uses_fallback:
+        return []
+    x, y, w, h = roi.box_xywh
+    rects = fallback_grasps(obs.depth, roi.mask, (int(x), int(y), int(w), int(h)), obs.intrinsics,
+                            max_opening_m=2 * config.fingers.half_opening, max_grasps=config.max_grasps,
+                            config=config.fallback)
+    return [replace(c, fallback=True) for c in _with_poses(obs, rects)]
+
+
+def iter_fitting_with_fallback(
+    candidates: Sequence[GraspCandidate], roi: Region, material: FloatArray, obs: Observation,
+    table_z: float, config: PipelineConfig,
+) -> Iterator[GraspCandidate]:
+    """``iter_fitting_with_refinements`` over the network's grasps or, when the fingers fit
+    around none of them, over the fallback's (computed only then): the robot's list of a region.
+
+    Either list is best first, so grounding may rank a region by its first grasp IK has not
+    ruled out (``sim/choose.py``); a fallback that followed fitting network grasps could score
+    higher than they do and break that."""
+    fitted = False
+    for c in iter_fitting_with_refinements(candidates, material, obs, table_z, config):
+        fitted = True
+        yield c
+    if config.uses_fallback and not fitted:
+        yield from iter_fitting_with_refinements(fallback_candidates(obs, roi, config), material, obs,
+                                                 table_z, config)
+
+
 def with_refinements(
     candidates: Sequence[GraspCandidate], material: FloatArray, obs: Observation, table_z: float,
     config: PipelineConfig,
@@ -388,7 +436,15 @@ def _refined(
                                 length_px=c.rect.length_px)
         except ValueError:
             continue
-        yield GraspCandidate(rect, better), True
+        yield GraspCandidate(rect, better, fallback=c.fallback), True
+
+
+def _refined_fallback(
+    obs: Observation, roi: Region, material: FloatArray, table_z: float, config: PipelineConfig,
+) -> list[GraspCandidate]:
+    """The fallback's grasps of one region with their refinements: the evaluation's list
+    continued, as ``iter_fitting_with_fallback`` continues the robot's."""
+    return with_refinements(fallback_candidates(obs, roi, config), material, obs, table_z, config)
 
 
 def raised_mask(world: FloatArray, table_z: float, tolerance: float) -> BoolMask:
@@ -432,14 +488,14 @@ def _check(
     ``prefer`` (``ClearanceConfig.prefer``), a candidate that passes also gets ``blocked``: what
     its approach would touch, from the same plan as its IK check."""
     if candidate.pose is None:
-        return GraspCandidate(candidate.rect, None, False, False, "no valid depth at the centre")
+        return replace(candidate, fits=False, reachable=False, detail="no valid depth at the centre", blocked=None)
     fits: bool | None = None
     detail = ""
     if fit:
         tip = tip_height(candidate.pose, config.pick, surfaces.table_z)
         fits, detail = finger_check(surfaces.material, candidate.pose, tip, config.fingers)
         if not fits:
-            return GraspCandidate(candidate.rect, candidate.pose, False, None, detail)
+            return replace(candidate, fits=False, reachable=None, detail=detail, blocked=None)
     reachable: bool | None = None
     blocked: str | None = None
     if ik or prefer:
@@ -453,18 +509,21 @@ def _check(
         if prefer and reachable is not False and touched is not None:
             blocked = touched
             detail = f"passes; not preferred: {touched}"
-    return GraspCandidate(candidate.rect, candidate.pose, fits, reachable, detail, blocked)
+    return replace(candidate, fits=fits, reachable=reachable, detail=detail, blocked=blocked)
 
 
 def _usable(
     env: SimEnv, candidates: list[GraspCandidate], surfaces: _Surfaces, config: PipelineConfig,
     exclude: Callable[[TopDownGrasp], bool] | None = None,
+    more: Callable[[], list[GraspCandidate]] | None = None,
 ) -> tuple[list[GraspCandidate], tuple[GraspCandidate, ...]]:
     """(candidates with check results filled in, the grasps grounding may use).
 
     With checks on, only the best candidate that passes them is usable: the robot would execute
     exactly that one. With checks off, every candidate with a pose is. Candidates ``exclude``
-    says yes to (a retry's grasps that already failed) are never usable.
+    says yes to (a retry's grasps that already failed) are never usable. ``more`` gives further
+    candidates (the fallback's), asked for and listed only when the fingers fit around none of
+    ``candidates`` (an excluded one fitted once: it was executed).
     """
     def excluded(c: GraspCandidate) -> bool:
         return exclude is not None and c.pose is not None and exclude(c.pose)
@@ -475,20 +534,30 @@ def _usable(
     checked: list[GraspCandidate] = []
     chosen: GraspCandidate | None = None
     fallback: GraspCandidate | None = None  # prefer: the first that passes, if none is clear
-    for c in candidates:
-        if chosen is not None:
+    fitted = False  # the fingers fit around some candidate
+
+    def check_all(listed: Iterable[GraspCandidate]) -> None:
+        nonlocal chosen, fallback, fitted
+        for c in listed:
+            if chosen is not None:
+                checked.append(c)
+                continue
+            if excluded(c):
+                fitted = True
+                checked.append(GraspCandidate(c.rect, c.pose, detail="tried before and failed", fallback=c.fallback))
+                continue
+            c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter, prefer)
+            fitted = fitted or c.fits is True
+            if c.pose is not None and c.fits is not False and c.reachable is not False:
+                if c.blocked is None:
+                    chosen = c
+                else:
+                    fallback = fallback or c
             checked.append(c)
-            continue
-        if excluded(c):
-            checked.append(GraspCandidate(c.rect, c.pose, detail="tried before and failed"))
-            continue
-        c = _check(env, c, surfaces, config, config.fit_filter, config.ik_filter, prefer)
-        if c.pose is not None and c.fits is not False and c.reachable is not False:
-            if c.blocked is None:
-                chosen = c
-            else:
-                fallback = fallback or c
-        checked.append(c)
+
+    check_all(candidates)
+    if not fitted and chosen is None and fallback is None and more is not None:
+        check_all(more())
     chosen = chosen or fallback
     return checked, (() if chosen is None else (chosen,))
 
@@ -583,7 +652,8 @@ def perceive(
         clear = config.pick.clearance
         surfaces = [_Surfaces(roi_points(world, raised, roi), table_z,
                               heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
-        checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude)
+        checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude,
+                           partial(_refined_fallback, obs, rois[i], s.material, table_z, config))
                    for i, s in enumerate(surfaces)]
         extents = [measure_extents(s.material, table_z) for s in surfaces]
         shares = [roi_colours(obs.rgb, raised, roi) if colours else None for roi in rois]
@@ -939,7 +1009,8 @@ def relocate_candidate(
                             length_px=grasp.rect.length_px)
     except ValueError:
         return grasp, f"{result.detail}; not in the image, kept"
-    return GraspCandidate(rect, result.pose, True, True, f"relocated: {result.detail}"), result.detail
+    return (GraspCandidate(rect, result.pose, True, True, f"relocated: {result.detail}", fallback=grasp.fallback),
+            result.detail)
 
 
 def retry_picks(

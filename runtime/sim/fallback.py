@@ -1,0 +1,79 @@
+"""Geometric grasps for a region the grasp network offers nothing usable on.
+
+Why: on the dev episodes, some regions get no network grasp that the hand can execute. Either
+GR-ConvNet finds no peak at all (the dice, a flat sponge, the golf ball: 7 sim-val targets), or
+every peak closes across a section wider than the hand (a bleach bottle's body, while its neck
+would fit). Grounding then cannot choose the object whatever the knowledge says (``no_grasp``).
+A robot is not limited to one grasp detector: the analytic antipodal sampler
+(``grasp/antipodal.py``) reads the same depth image and region mask and proposes grasps across
+the region's narrow parts.
+
+It is a *fallback*, tried only after every network grasp (and its refinements) has failed the
+checks, and it never outranks the network. The network reports grasps in
+``[min_quality, 1]``; a fallback grasp's score is the sampler's score (0, 1] scaled into the band
+below, ``(0, min_quality]``, so ``E_grasp`` for a fallback grasp is at least
+``-log(min_quality)`` (1.6 at the networks' 0.2). The candidate list of a region stays best
+first, which the robot's lazy path relies on (``sim/choose.py``). These were fixed before any
+measurement.
+
+The sampler runs on a crop around the region (its box plus room for the open fingers), not on
+the whole frame: ~5x cheaper, and the grasps are the same up to the crop offset wherever the
+fingers' zones stay inside the crop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from ..grasp.antipodal import AntipodalConfig, sample_antipodal_grasps
+from ..grasp.geometry import CameraIntrinsics, Grasp2D
+
+
+@dataclass(frozen=True)
+class FallbackConfig:
+    """Whether regions without a usable network grasp get the antipodal sampler's grasps."""
+
+    enabled: bool = True
+    #: extra metres around the region's box in the sampler's crop, beyond the open hand's
+    #: half-width: the finger zones it inspects must lie inside the crop
+    margin_m: float = 0.03
+    #: the fallback's grasp scores are the sampler's times this (0.2, the networks' threshold,
+    #: puts them below every network grasp: measured first, ``docs/results/sim_execution.md``)
+    quality_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.quality_scale <= 1:
+            raise ValueError(f"quality_scale {self.quality_scale}: must be in (0, 1]")
+
+
+def fallback_grasps(
+    depth: npt.NDArray[np.floating], mask: npt.NDArray[np.bool_], box_xywh: tuple[int, int, int, int],
+    intrinsics: CameraIntrinsics, *, max_opening_m: float, max_grasps: int, config: FallbackConfig,
+) -> list[Grasp2D]:
+    """Antipodal grasps on ``mask`` (full-frame ``[H, W]``), best first, in full-frame pixels,
+    their quality times ``config.quality_scale``."""
+    if not mask.any():
+        return []
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    seen = np.asarray(depth, dtype=np.float64)[ys, xs]
+    seen = seen[np.isfinite(seen) & (seen > 0)]
+    if not seen.size:
+        return []  # no depth on the region: nothing to measure a grasp with
+    depth_m = float(np.median(seen))
+    px_per_m = 0.5 * (intrinsics.fx + intrinsics.fy) / depth_m
+    pad = math.ceil((max_opening_m / 2 + config.margin_m) * px_per_m)
+    x, y, bw, bh = box_xywh
+    x0, y0 = max(x - pad, 0), max(y - pad, 0)
+    x1, y1 = min(x + bw + pad, w), min(y + bh + pad, h)
+    crop_intrinsics = CameraIntrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy,
+                                       intrinsics.cx - x0, intrinsics.cy - y0)
+    sampler = AntipodalConfig(max_opening_m=max_opening_m)
+    found = sample_antipodal_grasps(np.asarray(depth)[y0:y1, x0:x1], mask[y0:y1, x0:x1], crop_intrinsics,
+                                    max_grasps, sampler)
+    return [replace(g, center_xy=(g.center_xy[0] + x0, g.center_xy[1] + y0),
+                    quality=float(g.quality) * config.quality_scale) for g in found]

@@ -1,0 +1,173 @@
+"""The antipodal fallback for regions the grasp network offers nothing usable on (``sim/fallback.py``).
+
+Why: a dice or a golf ball gets no GR-ConvNet peak at all, so grounding could not choose it
+whatever the knowledge said. The fallback must (1) find grasps on such a region, (2) be asked
+for only when the fingers fit around no network grasp, in both the evaluation's and the robot's
+path (then each region's list is best first, which the robot's lazy path needs), and (3) give
+the same grasps as the sampler on the whole frame though it runs on a crop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from conftest import load_script
+
+from craft_e.runtime.grasp.antipodal import AntipodalConfig, sample_antipodal_grasps
+from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D, TopDownGrasp
+from craft_e.runtime.perception.observation import Observation
+from craft_e.runtime.perception.roi import Region
+from craft_e.runtime.sim import pipeline
+from craft_e.runtime.sim.fallback import FallbackConfig, fallback_grasps
+from craft_e.runtime.sim.refine import RefineConfig
+
+INTR = CameraIntrinsics.realsense_d435()
+TABLE_DEPTH = 0.7  # m: a camera straight above the table
+
+
+def dice_scene(side_m: float = 0.016, centre: tuple[int, int] = (400, 300)) -> tuple[
+        npt.NDArray[np.float32], npt.NDArray[np.bool_], tuple[int, int, int, int]]:
+    """Depth of a small cube on a table, its mask and box (what segmentation hands over)."""
+    depth = np.full((INTR.height, INTR.width), TABLE_DEPTH, np.float32)
+    half = round(side_m / 2 * INTR.fx / TABLE_DEPTH)
+    cx, cy = centre
+    depth[cy - half:cy + half, cx - half:cx + half] = TABLE_DEPTH - side_m
+    mask = depth < TABLE_DEPTH - 0.005
+    return depth, mask, (cx - half, cy - half, 2 * half, 2 * half)
+
+
+def test_a_dice_gets_grasps_best_first() -> None:
+    depth, mask, box = dice_scene()
+    found = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, max_grasps=5, config=FallbackConfig())
+    assert found, "the sampler should find the cube's faces"
+    qualities = [g.quality for g in found]
+    assert all(0.0 < q <= 1.0 for q in qualities)
+    assert qualities == sorted(qualities, reverse=True)  # best first, as the lazy path needs
+    for g in found:
+        assert mask[round(g.center_xy[1]), round(g.center_xy[0])]
+    scaled = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, max_grasps=5,
+                             config=FallbackConfig(quality_scale=0.2))
+    assert [g.quality for g in scaled] == pytest.approx([0.2 * q for q in qualities])
+    with pytest.raises(ValueError, match="quality_scale"):
+        FallbackConfig(quality_scale=0.0)
+
+
+def test_the_crop_gives_the_whole_frames_grasps() -> None:
+    depth, mask, box = dice_scene(0.04, centre=(150, 120))
+    whole = sample_antipodal_grasps(depth, mask, INTR, 5, AntipodalConfig(max_opening_m=0.08))
+    cropped = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, max_grasps=5, config=FallbackConfig())
+    assert whole and len(cropped) == len(whole)
+    for c, w in zip(cropped, whole, strict=True):
+        assert c.center_xy == pytest.approx(w.center_xy, abs=1e-6)
+        assert (c.angle_rad, c.width_px) == pytest.approx((w.angle_rad, w.width_px), abs=1e-9)
+        assert c.quality == pytest.approx(w.quality)
+
+
+def test_a_region_without_pixels_or_depth_gets_nothing() -> None:
+    depth, mask, box = dice_scene()
+    kwargs = {"max_opening_m": 0.08, "max_grasps": 5, "config": FallbackConfig()}
+    assert fallback_grasps(depth, np.zeros_like(mask), box, INTR, **kwargs) == []  # type: ignore[arg-type]
+    assert fallback_grasps(np.full_like(depth, np.nan), mask, box, INTR, **kwargs) == []  # type: ignore[arg-type]
+
+
+def test_only_grasp_networks_with_checks_have_a_fallback() -> None:
+    assert pipeline.PipelineConfig().uses_fallback
+    assert pipeline.PipelineConfig().to_dict()["grasp_fallback"] is True
+    assert not pipeline.PipelineConfig(grasp="antipodal").uses_fallback  # the sampler is the source
+    assert not pipeline.PipelineConfig(grasp="oracle").uses_fallback
+    assert not pipeline.PipelineConfig(fit_filter=False).uses_fallback  # "usable" needs the checks
+    assert not pipeline.PipelineConfig(fallback=FallbackConfig(enabled=False)).uses_fallback
+
+
+def _candidate(i: int, quality: float, fallback: bool = False) -> pipeline.GraspCandidate:
+    pose = TopDownGrasp(position=np.array([0.4, 0.01 * i, 0.05]), yaw=0.0, width_m=0.04)
+    return pipeline.GraspCandidate(Grasp2D((10.0 * i, 5.0), 0.0, 20.0, 10.0, quality), pose, fallback=fallback)
+
+
+def _index(c: pipeline.GraspCandidate) -> int:
+    assert c.pose is not None
+    return round(float(c.pose.position[1]) / 0.01)
+
+
+def test_the_evaluation_asks_for_the_fallback_only_when_no_network_grasp_fits(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    passing: set[int] = {1}
+    unreachable: set[int] = set()
+
+    def finger(material: object, pose: TopDownGrasp, *_: object) -> tuple[bool, str]:
+        return round(float(pose.position[1]) / 0.01) in passing, "does not fit"
+
+    def problems(env: object, pose: TopDownGrasp, *_: object) -> tuple[str | None, str | None]:
+        return ("unreachable" if round(float(pose.position[1]) / 0.01) in unreachable else None), None
+
+    monkeypatch.setattr(pipeline, "finger_check", finger)
+    monkeypatch.setattr(pipeline, "pick_problems", problems)
+    config = pipeline.PipelineConfig()
+    surfaces = pipeline._Surfaces(np.zeros((0, 3)), 0.0)
+    asked: list[int] = []
+
+    def more() -> list[pipeline.GraspCandidate]:
+        asked.append(1)
+        return [_candidate(5, 0.15, fallback=True), _candidate(6, 0.1, fallback=True)]
+
+    network = [_candidate(0, 0.9), _candidate(1, 0.5)]
+    listed, usable = pipeline._usable(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
+    assert [_index(c) for c in usable] == [1] and not asked and len(listed) == 2
+    unreachable.add(1)  # a network grasp fits but its pick is unreachable: the region has none
+    listed, usable = pipeline._usable(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
+    assert not usable and not asked and len(listed) == 2
+    passing.clear()
+    passing.add(6)
+    listed, usable = pipeline._usable(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
+    assert asked == [1]
+    assert [_index(c) for c in listed] == [0, 1, 5, 6]  # the fallback's grasps are listed after the network's
+    assert [(_index(c), c.fallback) for c in usable] == [(6, True)]
+
+
+def test_the_robot_computes_the_fallback_only_when_no_network_grasp_fits(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[int] = []
+    passing: set[int] = {0, 7}
+
+    def fake_fallback(obs: object, roi: object, config: object) -> list[pipeline.GraspCandidate]:
+        calls.append(1)
+        return [_candidate(7, 0.8, fallback=True)]
+
+    def finger(material: object, pose: TopDownGrasp, *_: object) -> tuple[bool, str]:
+        return round(float(pose.position[1]) / 0.01) in passing, "does not fit"
+
+    monkeypatch.setattr(pipeline, "fallback_candidates", fake_fallback)
+    monkeypatch.setattr(pipeline, "finger_check", finger)
+    obs = Observation(np.zeros((INTR.height, INTR.width, 3), np.uint8),
+                      np.full((INTR.height, INTR.width), TABLE_DEPTH, np.float32), INTR, np.eye(4))
+    roi = Region((0, 0, 1, 1), np.zeros((INTR.height, INTR.width), bool), 0, (0.0, 0.0))
+    config = pipeline.PipelineConfig(refine=RefineConfig(enabled=False))
+
+    def listed() -> list[tuple[int, bool]]:
+        return [(_index(c), c.fallback) for c in pipeline.iter_fitting_with_fallback(
+            [_candidate(0, 0.9)], roi, np.zeros((0, 3)), obs, 0.0, config)]
+
+    assert listed() == [(0, False)] and not calls  # the network's grasp fits: no fallback computed
+    passing.discard(0)
+    assert listed() == [(7, True)] and calls == [1]  # none fits: the fallback's grasps, best first
+    lazily = pipeline.iter_fitting_with_fallback([_candidate(0, 0.9)], roi, np.zeros((0, 3)), obs, 0.0, config)
+    assert calls == [1]  # a generator: nothing is computed before the robot asks
+    assert math.isclose(next(lazily).quality, 0.8) and calls == [1, 1]
+
+
+def test_bench_pick_settings_reads_the_fallback_setting() -> None:
+    """``benchmarks/bench_pick_settings.py --setting C,M[,off|SCALE]``: the fallback comparison's
+    command (docs/results/sim_execution.md) must parse what the docs quote, and refuse the rest."""
+    bench = load_script(Path(__file__).parents[1] / "benchmarks" / "bench_pick_settings.py")
+    assert bench.parse_setting("0.002,-0.002") == {"table_clearance": 0.002, "clearance_margin": -0.002,
+                                                   "fallback": 1.0}
+    assert bench.parse_setting("0.002,-0.002,off")["fallback"] is None
+    assert bench.parse_setting("0.002,-0.002,0.2")["fallback"] == 0.2
+    for bad in ("0.002", "0.002,-0.002,0", "0.002,-0.002,maybe", "a,b"):
+        with pytest.raises(argparse.ArgumentTypeError, match="TABLE_CLEARANCE"):
+            bench.parse_setting(bad)
