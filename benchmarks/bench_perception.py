@@ -68,6 +68,7 @@ from craft_e.runtime.sim.choose import (
 )
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import PlanCache
+from craft_e.runtime.sim.fallback import FallbackConfig
 from craft_e.runtime.sim.pipeline import (
     GraspCandidate,
     PipelineConfig,
@@ -101,6 +102,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=positive_int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--json", type=output_file, default=None)
+    parser.add_argument("--no-grasp-fallback", action="store_true",
+                        help="without the antipodal fallback (sim/fallback.py): what it costs")
     args = parser.parse_args()
 
     import torch
@@ -108,7 +111,7 @@ def main() -> None:
     from craft_e.runtime.encoders.image import crop_box, inference_encoder
     from craft_e.runtime.grasp.predict import predict_frame
 
-    cfg = PipelineConfig(torch_threads=args.threads)
+    cfg = PipelineConfig(torch_threads=args.threads, fallback=FallbackConfig(enabled=not args.no_grasp_fallback))
     specs = make_episode_specs(load_sim_labels(args.labels), layouts=1, max_pairs=args.scenes, min_gap=None)
     enc = default_encoder(args.threads)
     fast_enc = inference_encoder(enc)  # the robot's encoder (perceive_for_pick): the floor's too
@@ -198,6 +201,7 @@ def main() -> None:
             "ratio": round(robot / floor_s, 3), "stages": {k: round(v, 4) for k, v in per_stage.items()},
             "floor": {k: round(v / n, 4) for k, v in floor.items()}, "scenes": len(specs),
             "repeats": args.repeats, "rois_per_scene": rois_total / n, "torch_threads": args.threads,
+            "grasp_fallback": cfg.uses_fallback,
             "torch_version": torch.__version__, "cpus": os.cpu_count(),
             "load_average": [round(load[0], 2), round(load_after[0], 2)],
             "ik_plans_per_scene": plans / n, "choice_equals_eager": f"{agree}/{n}",

@@ -9,8 +9,9 @@ none, against an energy of the grounder's form (each ROI's own term + ``-log`` b
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -100,3 +101,49 @@ def test_a_second_grounder_reuses_what_ik_ruled_out() -> None:
     assert first.grasp == "b0" and asked == ["a0", "b0"]  # a0 unreachable: a1 (0.5) loses to b0
     second = ground_lazily(_Grounder([0.0, 5.0]), "cut", lazy, ik)  # type: ignore[arg-type]
     assert second.grasp == "a1" and asked == ["a0", "b0", "a1"] and second.plans == 1
+
+
+def test_the_fallback_is_deferred_and_the_choice_still_equals_the_eager_one() -> None:
+    """ROIs the fingers fit around no network grasp on get the fallback's list (``LazyROI.fallback``),
+    scored anywhere in (0, 1]: the eager path uses it whenever the network's list is empty; the lazy
+    path ranks such an ROI with a perfect placeholder and runs the sampler only when that wins."""
+    rng = np.random.default_rng(1)
+    ran = skipped = 0
+    for _ in range(500):
+        rois, reachable, own = _scene(rng)
+        fallbacks: list[list[tuple[str, float]]] = []
+        for i, grasps in enumerate(rois):
+            scores = sorted(np.round(rng.uniform(0.05, 1.0, int(rng.integers(0, 4))), 1).tolist(), reverse=True)
+            extra = [(f"f{i}g{j}", float(s)) for j, s in enumerate(scores)] if not grasps else []
+            reachable |= {name for name, _ in extra if rng.random() < 0.6}
+            fallbacks.append(extra)
+        calls: list[int] = []
+
+        def run(i: int, extra: list[tuple[str, float]], calls: list[int] = calls) -> Iterator[_Fitting]:
+            calls.append(i)
+            return iter([_Fitting(n, s) for n, s in extra])
+
+        lazy = [LazyROI((0.0, 0.0, 1.0, 1.0), np.zeros(4, np.float32), [n for n, _ in g], [s for _, s in g],
+                        fallback=partial(run, i, fallbacks[i]) if not g else None)
+                for i, g in enumerate(rois)]
+
+        def ik(grasp: object, reachable: set[str] = reachable) -> bool:
+            name = grasp.name if isinstance(grasp, _Fitting) else grasp
+            return name in reachable
+
+        choice = ground_lazily(_Grounder(own), "cut", lazy, ik)  # type: ignore[arg-type]
+        got = choice.grasp.name if isinstance(choice.grasp, _Fitting) else choice.grasp
+        eager_lists = [g or f for g, f in zip(rois, fallbacks, strict=True)]
+        assert got == _eager(eager_lists, reachable, own)
+        assert len(calls) == len(set(calls))  # the sampler runs once per ROI at most
+        ran += len(calls)
+        skipped += sum(1 for g in rois if not g) - len(calls)
+    assert ran > 0 and skipped > 0  # it runs when needed, and is skipped when it cannot matter
+
+
+@dataclass(frozen=True)
+class _Fitting:
+    """A fallback grasp as ``LazyROI`` pulls it from an iterator: named, with its score."""
+
+    name: str
+    quality: float

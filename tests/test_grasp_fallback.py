@@ -10,7 +10,7 @@ the same grasps as the sampler on the whole frame though it runs on a crop.
 from __future__ import annotations
 
 import argparse
-import math
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +20,8 @@ from conftest import load_script
 
 from craft_e.runtime.grasp.antipodal import AntipodalConfig, sample_antipodal_grasps
 from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D, TopDownGrasp
-from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.perception.roi import Region
 from craft_e.runtime.sim import pipeline
 from craft_e.runtime.sim.fallback import FallbackConfig, fallback_grasps
-from craft_e.runtime.sim.refine import RefineConfig
 
 INTR = CameraIntrinsics.realsense_d435()
 TABLE_DEPTH = 0.7  # m: a camera straight above the table
@@ -129,35 +126,46 @@ def test_the_evaluation_asks_for_the_fallback_only_when_no_network_grasp_fits(
     assert [(_index(c), c.fallback) for c in usable] == [(6, True)]
 
 
-def test_the_robot_computes_the_fallback_only_when_no_network_grasp_fits(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    calls: list[int] = []
-    passing: set[int] = {0, 7}
+def test_in_a_dev_scene_both_paths_give_the_dice_the_same_fallback_grasp() -> None:
+    """``pour/cup/2`` (sim-dev): GR-ConvNet finds no peak on the dice among the distractors. The
+    evaluation's path lists the fallback's grasps after the (no) network grasps and uses the first
+    that passes; the robot's path defers the sampler (``choose.LazyROI``) and, once run, offers the
+    same grasp first. Regions whose network grasps fit have no fallback pending."""
+    from craft_e.paths import SIM_DEV_LABELS
+    from craft_e.runtime.evaluation.sim_eval import (
+        default_encoder,
+        load_sim_labels,
+        make_episode_specs,
+    )
+    from craft_e.runtime.sim.choose import perceive_for_pick
+    from craft_e.runtime.sim.env import SimEnv
 
-    def fake_fallback(obs: object, roi: object, config: object) -> list[pipeline.GraspCandidate]:
-        calls.append(1)
-        return [_candidate(7, 0.8, fallback=True)]
-
-    def finger(material: object, pose: TopDownGrasp, *_: object) -> tuple[bool, str]:
-        return round(float(pose.position[1]) / 0.01) in passing, "does not fit"
-
-    monkeypatch.setattr(pipeline, "fallback_candidates", fake_fallback)
-    monkeypatch.setattr(pipeline, "finger_check", finger)
-    obs = Observation(np.zeros((INTR.height, INTR.width, 3), np.uint8),
-                      np.full((INTR.height, INTR.width), TABLE_DEPTH, np.float32), INTR, np.eye(4))
-    roi = Region((0, 0, 1, 1), np.zeros((INTR.height, INTR.width), bool), 0, (0.0, 0.0))
-    config = pipeline.PipelineConfig(refine=RefineConfig(enabled=False))
-
-    def listed() -> list[tuple[int, bool]]:
-        return [(_index(c), c.fallback) for c in pipeline.iter_fitting_with_fallback(
-            [_candidate(0, 0.9)], roi, np.zeros((0, 3)), obs, 0.0, config)]
-
-    assert listed() == [(0, False)] and not calls  # the network's grasp fits: no fallback computed
-    passing.discard(0)
-    assert listed() == [(7, True)] and calls == [1]  # none fits: the fallback's grasps, best first
-    lazily = pipeline.iter_fitting_with_fallback([_candidate(0, 0.9)], roi, np.zeros((0, 3)), obs, 0.0, config)
-    assert calls == [1]  # a generator: nothing is computed before the robot asks
-    assert math.isclose(next(lazily).quality, 0.8) and calls == [1, 1]
+    labels = load_sim_labels(SIM_DEV_LABELS)  # the scene depends on the whole file; placing only the pair's is quick
+    pairs = tuple(pair for pair in labels.pairs if (pair.verb, pair.object) == ("pour", "cup"))
+    spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
+                if s.id == "pour/cup/2")
+    config = pipeline.PipelineConfig()
+    encoder = default_encoder(1)
+    with SimEnv() as env:
+        env.reset(spec.scene)
+        env.robot.reset_home()
+        obs = env.capture()
+        eager = pipeline.perceive(env, encoder, config, obs)
+        dice = [i for i, r in enumerate(eager.rois) if r.usable and r.usable[0].fallback]
+        assert len(dice) == 1 and env.scene.body_assets[eager.rois[dice[0]].body] == "dice"
+        used = eager.rois[dice[0]].usable[0]
+        assert used.pose is not None and 0 < used.quality <= 1
+        lazy = perceive_for_pick(env, encoder, config, obs)
+        no_network_fit = [i for i, r in enumerate(eager.rois)
+                          if not any(c.fits and not c.fallback for c in r.candidates)]
+        assert dice[0] in no_network_fit
+        assert [i for i, r in enumerate(lazy) if r.pending_fallback] == no_network_fit
+        assert lazy[dice[0]].as_roi("dice").grasp_scores == [1.0]  # the placeholder, before the sampler
+        lazy[dice[0]].run_fallback()
+        first = lazy[dice[0]].as_roi("dice").grasps[0]
+        assert isinstance(first, pipeline.GraspCandidate) and first.fallback and first.pose is not None
+        np.testing.assert_allclose(first.pose.position, used.pose.position, atol=1e-9)
+        assert (first.pose.yaw, first.quality) == pytest.approx((used.pose.yaw, used.quality))
 
 
 def test_bench_pick_settings_reads_the_fallback_setting() -> None:

@@ -13,12 +13,19 @@ tried best first, so an unverified ROI's energy can only rise once verified; the
 verified, and every other ROI's true energy is at least what it was ranked with. Stable ties
 (lowest ROI index) are kept the same way. ``tests/test_choose.py`` checks it against the eager
 path.
+
+The grasp fallback (``sim/fallback.py``: the antipodal sampler's grasps, for an ROI the fingers
+fit around none of the network's grasps on) is deferred the same way. Such an ROI is ranked as
+if it had a perfect grasp (score 1, ``E_grasp = 0``; no fallback grasp scores more), which
+cannot make it look worse than it is; only when that ranking chooses it does the sampler run
+and the ROI take its first fitting grasp (or drop out), and grounding runs again.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -66,6 +73,20 @@ class LazyROI:
     material: npt.NDArray[np.float64] | None = None
     raw: Sequence[Any] = ()
     region: Region | None = None  # the region itself, for the fallback's grasps (``sim/fallback.py``)
+    #: the fallback's fitting grasps, best first, computed when called (``sim/fallback.py``): used
+    #: only when no grasp of ``unchecked`` fits; None once called, or with no fallback
+    fallback: Callable[[], Iterator[Any]] | None = None
+
+    @property
+    def pending_fallback(self) -> bool:
+        """No network grasp fits and the fallback has not run: ranked with an optimistic score."""
+        self._checked_through(0)
+        return not self.fitting and self.fallback is not None
+
+    def run_fallback(self) -> None:
+        """Take the fallback's grasps as this ROI's list (the sampler runs now)."""
+        assert self.fallback is not None and not self.fitting
+        self.unchecked, self.fallback = self.fallback(), None
 
     def _checked_through(self, index: int) -> None:
         """Check grasps from ``unchecked`` until ``fitting[index]`` exists or none are left."""
@@ -78,7 +99,12 @@ class LazyROI:
             self.scores.append(float(grasp.quality))
 
     def as_roi(self, label: str) -> ROI:
-        """The grounder's view: the best grasp not ruled out (none left: no grasp)."""
+        """The grounder's view: the best grasp not ruled out (none left: no grasp), or a perfect
+        placeholder score while the fallback is pending."""
+        if self.pending_fallback:
+            return ROI(box_xywh=self.box_xywh, grasp_scores=[1.0], grasps=[None],
+                       image_embedding=self.embedding, label=label, extents_m=self.extents_m,
+                       colours=self.colours, classes=self.classes)
         self._checked_through(self.next_index)
         rest = self.next_index < len(self.fitting)
         return ROI(box_xywh=self.box_xywh,
@@ -113,6 +139,9 @@ def ground_lazily(
         if chosen is None:
             return LazyChoice(grounding, None, plans)
         roi = rois[chosen.index]
+        if roi.pending_fallback:  # chosen on the placeholder: run the sampler and ground again
+            roi.run_fallback()
+            continue
         k = roi.next_index
         if k in roi.verified:
             return LazyChoice(grounding, roi.fitting[k], plans)
@@ -143,7 +172,8 @@ def perceive_for_pick(
     from .clearance import heights_around
     from .pipeline import (
         _stage,
-        iter_fitting_with_fallback,
+        iter_fallback_fitting,
+        iter_fitting_with_refinements,
         raised_mask,
         raw_candidates,
         roi_colours,
@@ -179,8 +209,10 @@ def perceive_for_pick(
                                [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
                                measure_extents(material, table_z),
                                roi_colours(obs.rgb, raised, roi) if colours else None, classes[i],
-                               unchecked=iter_fitting_with_fallback(raw[i], roi, material, obs, table_z, config),
-                               mask=roi.mask, material=material, raw=raw[i], region=roi))
+                               unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
+                               mask=roi.mask, material=material, raw=raw[i], region=roi,
+                               fallback=(partial(iter_fallback_fitting, obs, roi, material, table_z, config)
+                                         if config.uses_fallback else None)))
     return out
 
 

@@ -341,23 +341,14 @@ def fallback_candidates(obs: Observation, roi: Region, config: PipelineConfig) -
     return [replace(c, fallback=True) for c in _with_poses(obs, rects)]
 
 
-def iter_fitting_with_fallback(
-    candidates: Sequence[GraspCandidate], roi: Region, material: FloatArray, obs: Observation,
-    table_z: float, config: PipelineConfig,
+def iter_fallback_fitting(
+    obs: Observation, roi: Region, material: FloatArray, table_z: float, config: PipelineConfig,
 ) -> Iterator[GraspCandidate]:
-    """``iter_fitting_with_refinements`` over the network's grasps or, when the fingers fit
-    around none of them, over the fallback's (computed only then): the robot's list of a region.
-
-    Either list is best first, so grounding may rank a region by its first grasp IK has not
-    ruled out (``sim/choose.py``); a fallback that followed fitting network grasps could score
-    higher than they do and break that."""
-    fitted = False
-    for c in iter_fitting_with_refinements(candidates, material, obs, table_z, config):
-        fitted = True
-        yield c
-    if config.uses_fallback and not fitted:
-        yield from iter_fitting_with_refinements(fallback_candidates(obs, roi, config), material, obs,
-                                                 table_z, config)
+    """The fallback's grasps on one region that the fingers fit around, with refinements, best
+    first (the sampler runs when this is called): the robot's list of a region the fingers fit
+    around none of the network's grasps on (``choose.LazyROI.fallback``), as ``_refined_fallback``
+    continues the evaluation's."""
+    return iter_fitting_with_refinements(fallback_candidates(obs, roi, config), material, obs, table_z, config)
 
 
 def with_refinements(
