@@ -36,9 +36,9 @@ WristLookOpt = Annotated[bool, typer.Option(help="Re-centre each grasp from one 
                                                  "pre-grasp (closed-loop correction).")]
 RefineGraspsOpt = Annotated[bool, typer.Option(help="Turn a network grasp the hand cannot close across, or move "
                                                     "it onto a vessel's wall, when that fits (sim/refine.py).")]
-GraspFallbackOpt = Annotated[bool, typer.Option(help="Give a region no network grasp is usable on the antipodal "
-                                                     "sampler's grasps, scored below any network grasp "
-                                                     "(sim/fallback.py).")]
+GraspFallbackOpt = Annotated[bool, typer.Option(help="Give a region whose network grasps the fingers fit "
+                                                     "around none of the antipodal sampler's grasps, checked "
+                                                     "the same way (sim/fallback.py).")]
 FineCollisionOpt = Annotated[bool, typer.Option(
     "--fine-collision/--shipped-collision",
     help="Objects whose shipped convex hulls fill an opening (a mug's mouth) collide through finer meshes "

@@ -1,24 +1,28 @@
-"""Geometric grasps for a region the grasp network offers nothing usable on.
+"""Geometric grasps for a region the fingers fit around none of the network's grasps on.
 
-Why: on the dev episodes, some regions get no network grasp that the hand can execute. Either
-GR-ConvNet finds no peak at all (the dice, a flat sponge, the golf ball: 7 sim-val targets), or
-every peak closes across a section wider than the hand (a bleach bottle's body, while its neck
-would fit). Grounding then cannot choose the object whatever the knowledge says (``no_grasp``).
-A robot is not limited to one grasp detector: the analytic antipodal sampler
+Why: on the dev episodes some regions get no network grasp the hand can close around. GR-ConvNet
+finds no peak at all on the dice and the golf ball (4 sim-val targets; the sponge's 3 are as wide
+as the hand's opening), and elsewhere every peak may close across a section wider than the hand.
+Grounding excludes a region without a usable grasp, so the knowledge never got a say
+(``no_grasp``). A robot is not limited to one grasp detector: the analytic antipodal sampler
 (``grasp/antipodal.py``) reads the same depth image and region mask and proposes grasps across
 the region's narrow parts.
 
-It is a *fallback*, tried only after every network grasp (and its refinements) has failed the
-checks, and it never outranks the network. The network reports grasps in
-``[min_quality, 1]``; a fallback grasp's score is the sampler's score (0, 1] scaled into the band
-below, ``(0, min_quality]``, so ``E_grasp`` for a fallback grasp is at least
-``-log(min_quality)`` (1.6 at the networks' 0.2). The candidate list of a region stays best
-first, which the robot's lazy path relies on (``sim/choose.py``). These were fixed before any
-measurement.
+It is a *fallback*: asked for only when the fingers fit around none of the network's grasps on
+the region (nor their refinements), and its grasps go through the same finger and IK checks. A
+region whose network grasps fit but whose picks are unreachable gets none, so each region's
+list is either the network's or the sampler's, each best first, which the robot's lazy path
+needs (``sim/choose.py``, where the sampler runs only if the region could win).
 
-The sampler runs on a crop around the region (its box plus room for the open fingers), not on
-the whole frame: ~5x cheaper, and the grasps are the same up to the crop offset wherever the
-fingers' zones stay inside the crop.
+Its grasps keep the sampler's score as their quality (``quality_scale`` 1). A first version
+scaled it by 0.2, the networks' peak threshold, to rank every fallback grasp below every network
+grasp; on the evaluation's dice and golf-ball episodes that left all four wrong choices, where
+the sampler's own score lets three succeed (``benchmarks/bench_pick_settings.py``,
+``docs/results/sim_execution.md``).
+
+The sampler runs on a crop around the region (its box plus the open hand's half-width and
+``margin_m``), not on the whole frame: several times cheaper, and the same grasps, shifted,
+wherever the fingers' zones stay inside the crop (``tests/test_grasp_fallback.py``).
 """
 
 from __future__ import annotations

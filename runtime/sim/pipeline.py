@@ -141,7 +141,7 @@ class PipelineConfig:
     pick: PickConfig = field(default_factory=PickConfig)
     segment: SegmentConfig = field(default_factory=SegmentConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)  # turn / move misfitting grasps (refine.py)
-    #: antipodal grasps for a region no network grasp is usable on (fallback.py; network sources only)
+    #: antipodal grasps for a region no network grasp fits (fallback.py; network sources only)
     fallback: FallbackConfig = field(default_factory=FallbackConfig)
 
     def __post_init__(self) -> None:
