@@ -157,6 +157,9 @@ def test_cli_writes_the_paper_table_as_json(first_run: dict[str, Any]) -> None:
     check_report(first_run)
     assert first_run["config"]["episodes"] == 1 and len(first_run["episodes"]) == 1
     assert first_run["episodes"][0]["target"] == "knife"
+    # the pick settings the run was measured at (finger tips above the table, clearance margin)
+    assert (first_run["config"]["table_clearance_m"], first_run["config"]["clearance_margin_m"]) == (0.002, -0.002)
+    assert first_run["config"]["pipeline"]["grasp_fallback"] is True
 
 
 def test_the_report_checker_catches_inconsistent_reports(first_run: dict[str, Any]) -> None:

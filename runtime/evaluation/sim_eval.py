@@ -584,4 +584,8 @@ def evaluate_sim(
     if cfg.pick.clearance.prefer:
         config_out["prefer_clear"] = True
     config_out["relocate"] = cfg.pick.clearance.relocate
+    # the pick settings results have turned on (finger tips 4 -> 2 mm above the table), so a
+    # results file says which it was measured at
+    config_out["table_clearance_m"] = cfg.pick.table_clearance
+    config_out["clearance_margin_m"] = cfg.pick.clearance.margin
     return SimReport(results, skipped, records, config_out)
