@@ -247,7 +247,12 @@ def relocate_choice(
     ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
     Costs one clearance check of the chosen pick when its approach is clear (and no IK plan,
     given the ``plans`` ``pick_reachable`` made)."""
-    from .pipeline import GraspCandidate, fallback_candidates, relocate_candidate, with_refinements
+    from .pipeline import (
+        GraspCandidate,
+        fallback_with_refinements,
+        relocate_candidate,
+        with_refinements,
+    )
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
     if not config.pick.clearance.relocate or roi.mask is None or roi.material is None:
@@ -263,8 +268,7 @@ def relocate_choice(
         table_z = env.scene.layout.table_z
         listed = with_refinements(list(roi.raw), roi.material, obs, table_z, config)
         if grasp.fallback and roi.region is not None:  # the evaluation listed the fallback's grasps too
-            listed += with_refinements(fallback_candidates(obs, roi.region, config), roi.material, obs, table_z,
-                                       config)
+            listed += fallback_with_refinements(obs, roi.region, roi.material, table_z, config)
         yield from (c.pose for c in listed if c.pose is not None and not is_chosen(c.pose))
 
     return relocate_candidate(env, obs, roi.mask, roi.material, grasp, others(), config, plans)

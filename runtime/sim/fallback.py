@@ -39,7 +39,7 @@ from ..grasp.geometry import CameraIntrinsics, Grasp2D
 
 @dataclass(frozen=True)
 class FallbackConfig:
-    """Whether regions without a usable network grasp get the antipodal sampler's grasps."""
+    """Whether regions no network grasp fits get the antipodal sampler's grasps, and how."""
 
     enabled: bool = True
     #: extra metres around the region's box in the sampler's crop, beyond the open hand's

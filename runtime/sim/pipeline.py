@@ -167,7 +167,7 @@ class PipelineConfig:
 
     @property
     def uses_fallback(self) -> bool:
-        """Whether regions without a usable network grasp get the antipodal fallback: only a
+        """Whether regions no network grasp fits get the antipodal fallback: only a
         grasp network has one (the antipodal and oracle sources are their own), and only with
         the grasp checks on (they decide what "usable" means)."""
         return self.fallback.enabled and self.grasp in NETWORK_SOURCES and self.fit_filter
@@ -201,7 +201,6 @@ class GraspCandidate:
     detail: str = ""
     blocked: str | None = None  # ClearanceConfig.prefer: what the approach of a passing grasp would touch
     fallback: bool = False  # from the antipodal fallback (sim/fallback.py), not the network
-
 
     @property
     def quality(self) -> float:
@@ -346,7 +345,7 @@ def iter_fallback_fitting(
 ) -> Iterator[GraspCandidate]:
     """The fallback's grasps on one region that the fingers fit around, with refinements, best
     first (the sampler runs when this is called): the robot's list of a region the fingers fit
-    around none of the network's grasps on (``choose.LazyROI.fallback``), as ``_refined_fallback``
+    around none of the network's grasps on (``choose.LazyROI.fallback``), as ``fallback_with_refinements``
     continues the evaluation's."""
     return iter_fitting_with_refinements(fallback_candidates(obs, roi, config), material, obs, table_z, config)
 
@@ -430,11 +429,11 @@ def _refined(
         yield GraspCandidate(rect, better, fallback=c.fallback), True
 
 
-def _refined_fallback(
+def fallback_with_refinements(
     obs: Observation, roi: Region, material: FloatArray, table_z: float, config: PipelineConfig,
 ) -> list[GraspCandidate]:
     """The fallback's grasps of one region with their refinements: the evaluation's list
-    continued, as ``iter_fitting_with_fallback`` continues the robot's."""
+    continued (and the robot's relocation spots), as ``iter_fallback_fitting`` is the robot's."""
     return with_refinements(fallback_candidates(obs, roi, config), material, obs, table_z, config)
 
 
@@ -524,11 +523,11 @@ def _usable(
     prefer = config.pick.clearance.prefer and surfaces.heights is not None
     checked: list[GraspCandidate] = []
     chosen: GraspCandidate | None = None
-    fallback: GraspCandidate | None = None  # prefer: the first that passes, if none is clear
+    first_blocked: GraspCandidate | None = None  # prefer: the first that passes, if none is clear
     fitted = False  # the fingers fit around some candidate
 
     def check_all(listed: Iterable[GraspCandidate]) -> None:
-        nonlocal chosen, fallback, fitted
+        nonlocal chosen, first_blocked, fitted
         for c in listed:
             if chosen is not None:
                 checked.append(c)
@@ -543,13 +542,13 @@ def _usable(
                 if c.blocked is None:
                     chosen = c
                 else:
-                    fallback = fallback or c
+                    first_blocked = first_blocked or c
             checked.append(c)
 
     check_all(candidates)
-    if not fitted and chosen is None and fallback is None and more is not None:
+    if not fitted and chosen is None and first_blocked is None and more is not None:
         check_all(more())
-    chosen = chosen or fallback
+    chosen = chosen or first_blocked
     return checked, (() if chosen is None else (chosen,))
 
 
@@ -644,7 +643,7 @@ def perceive(
         surfaces = [_Surfaces(roi_points(world, raised, roi), table_z,
                               heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
         checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude,
-                           partial(_refined_fallback, obs, rois[i], s.material, table_z, config))
+                           partial(fallback_with_refinements, obs, rois[i], s.material, table_z, config))
                    for i, s in enumerate(surfaces)]
         extents = [measure_extents(s.material, table_z) for s in surfaces]
         shares = [roi_colours(obs.rgb, raised, roi) if colours else None for roi in rois]
