@@ -73,6 +73,50 @@ def test_preemptive_plane_scoring_keeps_the_plane_of_the_full_count() -> None:
         assert abs(abs(float(fast.normal @ normal)) - 1.0) < 1e-3  # and it is the table
 
 
+def test_cached_ransac_draws_are_the_draws_of_a_fresh_generator() -> None:
+    """The plane fit reuses its random draws for a point count it has seen (``plane._draws``):
+    they must be the integers a generator seeded for this fit would draw (so the plane is the
+    one drawing them anew gives), per count, and read-only (a caller cannot corrupt the cache)."""
+    from craft_e.runtime.perception.plane import PlaneFitConfig, _draws
+
+    cfg = PlaneFitConfig()
+    for count in (50, cfg.max_samples, 76_800, 61_234):
+        rng = np.random.default_rng(cfg.seed)
+        chosen = None if count <= cfg.max_samples else rng.choice(count, cfg.max_samples, replace=False)
+        size = count if chosen is None else cfg.max_samples
+        triples = np.array([rng.choice(size, 3, replace=False) for _ in range(cfg.iterations)])
+        for _ in range(2):  # drawn, then from the cache
+            cached_chosen, cached_triples = _draws(count, cfg.seed, cfg.max_samples, cfg.iterations)
+            assert (cached_chosen is None) == (chosen is None)
+            assert chosen is None or np.array_equal(cached_chosen, chosen)
+            assert np.array_equal(cached_triples, triples)
+            assert not cached_triples.flags.writeable
+            assert cached_chosen is None or not cached_chosen.flags.writeable
+
+
+def test_fill_holes_equals_scipy_on_random_masks() -> None:
+    """``segment.fill_holes`` replaces ``ndimage.binary_fill_holes`` on padded masks (the ROI
+    masks of ``segment``): the same pixels on random blobs, rings and speckle, and an error for
+    a mask that touches its border (where the shortcut would not hold)."""
+    from scipy import ndimage
+
+    from craft_e.runtime.perception.segment import fill_holes
+
+    rng = np.random.default_rng(5)
+    for trial in range(400):
+        h, w = (int(v) for v in rng.integers(1, 50, 2))
+        mask = np.pad(rng.random((h, w)) < rng.uniform(0.2, 0.95), 1)
+        if trial % 3 == 0:  # smoother blobs with real holes, like an opened segmentation mask
+            mask = np.pad(ndimage.binary_opening(mask), 1)
+        assert np.array_equal(fill_holes(mask), ndimage.binary_fill_holes(mask)), trial
+    ring = np.zeros((7, 7), dtype=bool)
+    ring[1:6, 1:6] = True
+    ring[3, 3] = False
+    assert fill_holes(ring)[3, 3]
+    with pytest.raises(ValueError, match="background border"):
+        fill_holes(np.ones((4, 4), dtype=bool))
+
+
 def test_colour_cue_recovers_an_object_too_flat_for_the_depth_threshold() -> None:
     height = np.zeros((120, 160))
     rgb = np.broadcast_to(np.array(TABLE_RGB, np.uint8), (120, 160, 3)).copy()

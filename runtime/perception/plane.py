@@ -8,6 +8,7 @@ with a real camera whose pose is only roughly known.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -73,17 +74,13 @@ def fit_plane(points: FloatArray, config: PlaneFitConfig | None = None) -> tuple
     Seeded, so the same image gives the same plane.
     """
     cfg = config or PlaneFitConfig()
-    # a row is finite iff its sum is (metres: no overflow); 5x faster than all(isfinite, axis=1)
-    pts = points[np.isfinite(points.sum(axis=1))]
+    # a row is finite iff its sum is (metres: no overflow); the columns added as three vector
+    # adds, ~6x faster than numpy's sum over an axis of length 3 (the mask is the same)
+    pts = points[np.isfinite(points[:, 0] + points[:, 1] + points[:, 2])]
     if len(pts) < 3:
         raise ValueError("need at least 3 valid depth points to fit a plane")
-    rng = np.random.default_rng(cfg.seed)
-    sample = (
-        pts
-        if len(pts) <= cfg.max_samples
-        else pts[rng.choice(len(pts), cfg.max_samples, replace=False)]
-    )
-    triples = np.array([rng.choice(len(sample), 3, replace=False) for _ in range(cfg.iterations)])  # [m, 3]
+    chosen, triples = _draws(len(pts), cfg.seed, cfg.max_samples, cfg.iterations)
+    sample = pts if chosen is None else pts[chosen]
     planes = (_plane_through(sample[t]) for t in _preempted(triples, sample, cfg))
     candidates = [c for c in planes if c is not None]
     if not candidates:
@@ -96,6 +93,27 @@ def fit_plane(points: FloatArray, config: PlaneFitConfig | None = None) -> tuple
     inliers = sample[np.abs(best.distance(sample)) < cfg.inlier_threshold]
     refined = _least_squares(inliers) if len(inliers) >= 3 else best
     return refined, len(inliers)
+
+
+@lru_cache(maxsize=8)
+def _draws(
+    count: int, seed: int, max_samples: int, iterations: int
+) -> tuple[npt.NDArray[np.intp] | None, npt.NDArray[np.intp]]:
+    """RANSAC's random draws for ``count`` points: which points are sampled (None: all of them)
+    and the ``[iterations, 3]`` point triples, indices into the sample; read-only.
+
+    Why cached: the draws depend on the point count and the settings only (the generator is
+    seeded per fit), and a fixed camera with full depth sees the same count every frame. Drawing
+    them (a permutation and 200 separate ``rng.choice`` calls) was half of the plane fit's time
+    on the robot's path; a cached draw is the same integers, so the same plane bit for bit."""
+    rng = np.random.default_rng(seed)
+    chosen = None if count <= max_samples else rng.choice(count, max_samples, replace=False)
+    size = count if chosen is None else max_samples
+    triples = np.array([rng.choice(size, 3, replace=False) for _ in range(iterations)])  # [m, 3]
+    for array in (chosen, triples):
+        if array is not None:
+            array.flags.writeable = False
+    return chosen, triples
 
 
 def _preempted(triples: npt.NDArray[np.intp], sample: FloatArray, cfg: PlaneFitConfig) -> npt.NDArray[np.intp]:

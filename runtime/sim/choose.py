@@ -68,9 +68,11 @@ class LazyROI:
     #: costs one finger check
     unchecked: Iterator[Any] | None = None
     #: for relocating a blocked chosen grasp (``relocate_choice``): the region's mask, its depth
-    #: points above the table and its raw network grasps (opaque here)
+    #: points above the table, the frame's raised pixels (one array shared by its ROIs: the
+    #: height map of the other objects is made from it) and its raw network grasps (opaque here)
     mask: npt.NDArray[np.bool_] | None = None
     material: npt.NDArray[np.float64] | None = None
+    raised: npt.NDArray[np.bool_] | None = None
     raw: Sequence[Any] = ()
     region: Region | None = None  # the region itself, for the fallback's grasps (``sim/fallback.py``)
     #: the fallback's fitting grasps, best first, computed when called (``sim/fallback.py``): used
@@ -210,7 +212,7 @@ def perceive_for_pick(
                                measure_extents(material, table_z),
                                roi_colours(obs.rgb, raised, roi) if colours else None, classes[i],
                                unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
-                               mask=roi.mask, material=material, raw=raw[i], region=roi,
+                               mask=roi.mask, material=material, raised=raised, raw=raw[i], region=roi,
                                fallback=(partial(iter_fallback_fitting, obs, roi, material, table_z, config)
                                          if config.uses_fallback else None)))
     return out
@@ -255,7 +257,7 @@ def relocate_choice(
     )
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
-    if not config.pick.clearance.relocate or roi.mask is None or roi.material is None:
+    if not config.pick.clearance.relocate or roi.mask is None or roi.material is None or roi.raised is None:
         return grasp, ""
     chosen = grasp.pose
 
@@ -271,4 +273,4 @@ def relocate_choice(
             listed += fallback_with_refinements(obs, roi.region, roi.material, table_z, config)
         yield from (c.pose for c in listed if c.pose is not None and not is_chosen(c.pose))
 
-    return relocate_candidate(env, obs, roi.mask, roi.material, grasp, others(), config, plans)
+    return relocate_candidate(env, obs, roi.mask, roi.raised, roi.material, grasp, others(), config, plans)

@@ -89,7 +89,9 @@ class HeightMap:
     def __init__(self, points: FloatArray, cell: float, floor_z: float) -> None:
         self.cell = cell
         self.floor_z = floor_z
-        pts = points[np.isfinite(points).all(axis=1)]
+        # a row is finite iff the sum of its columns is (metres: no overflow), without the
+        # [n, 3] temporary of isfinite(points).all(axis=1)
+        pts = points[np.isfinite(points[:, 0] + points[:, 1] + points[:, 2])]
         self.origin: FloatArray = pts[:, :2].min(axis=0) if len(pts) else np.zeros(2)
         z: FloatArray = np.full((1, 1), floor_z)
         if len(pts):

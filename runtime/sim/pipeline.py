@@ -971,22 +971,23 @@ def relocated_grasp(
     world = obs.points_world()
     raised = raised_mask(world, env.scene.layout.table_z, config.fingers.height_tolerance)
     others = [c.pose for c in roi.candidates if c.pose is not None and c.pose is not grasp.pose]
-    return relocate_candidate(env, obs, roi.roi.mask, roi_points(world, raised, roi.roi), grasp, others, config)
+    return relocate_candidate(env, obs, roi.roi.mask, raised, roi_points(world, raised, roi.roi), grasp, others,
+                              config)
 
 
 def relocate_candidate(
-    env: SimEnv, obs: Observation, mask: BoolMask, material: FloatArray, grasp: GraspCandidate,
+    env: SimEnv, obs: Observation, mask: BoolMask, raised: BoolMask, material: FloatArray, grasp: GraspCandidate,
     others: Iterable[TopDownGrasp], config: PipelineConfig, plans: PlanCache | None = None,
 ) -> tuple[GraspCandidate, str]:
     """What both paths share (``relocated_grasp``, ``choose.relocate_choice``): the search over
     the region's own depth points (``material``) against the height map of everything outside
-    its ``mask``, and the moved grasp as a candidate with the network grasp's quality."""
+    its ``mask``, and the moved grasp as a candidate with the network grasp's quality.
+    ``raised``: the frame's ``raised_mask`` (the caller has it: made once per frame)."""
     from .relocate import RelocateConfig, relocate_if_blocked
 
     assert grasp.pose is not None
     table_z = env.scene.layout.table_z
     world = obs.points_world()
-    raised = raised_mask(world, table_z, config.fingers.height_tolerance)
     heights = heights_excluding(world, raised, mask, table_z, config.pick.clearance)
     result = relocate_if_blocked(
         grasp.pose, others, material, heights,
