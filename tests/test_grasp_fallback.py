@@ -40,14 +40,14 @@ def dice_scene(side_m: float = 0.016, centre: tuple[int, int] = (400, 300)) -> t
 
 def test_a_dice_gets_grasps_best_first() -> None:
     depth, mask, box = dice_scene()
-    found = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, max_grasps=5, config=FallbackConfig())
+    found = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, min_clearance_m=0.005, max_grasps=5, config=FallbackConfig())
     assert found, "the sampler should find the cube's faces"
     qualities = [g.quality for g in found]
     assert all(0.0 < q <= 1.0 for q in qualities)
     assert qualities == sorted(qualities, reverse=True)  # best first, as the lazy path needs
     for g in found:
         assert mask[round(g.center_xy[1]), round(g.center_xy[0])]
-    scaled = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, max_grasps=5,
+    scaled = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, min_clearance_m=0.005, max_grasps=5,
                              config=FallbackConfig(quality_scale=0.2))
     assert [g.quality for g in scaled] == pytest.approx([0.2 * q for q in qualities])
     with pytest.raises(ValueError, match="quality_scale"):
@@ -57,7 +57,7 @@ def test_a_dice_gets_grasps_best_first() -> None:
 def test_the_crop_gives_the_whole_frames_grasps() -> None:
     depth, mask, box = dice_scene(0.04, centre=(150, 120))
     whole = sample_antipodal_grasps(depth, mask, INTR, 5, AntipodalConfig(max_opening_m=0.08))
-    cropped = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, max_grasps=5, config=FallbackConfig())
+    cropped = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, min_clearance_m=0.005, max_grasps=5, config=FallbackConfig())
     assert whole and len(cropped) == len(whole)
     for c, w in zip(cropped, whole, strict=True):
         assert c.center_xy == pytest.approx(w.center_xy, abs=1e-6)
@@ -67,7 +67,7 @@ def test_the_crop_gives_the_whole_frames_grasps() -> None:
 
 def test_a_region_without_pixels_or_depth_gets_nothing() -> None:
     depth, mask, box = dice_scene()
-    kwargs = {"max_opening_m": 0.08, "max_grasps": 5, "config": FallbackConfig()}
+    kwargs = {"max_opening_m": 0.08, "min_clearance_m": 0.005, "max_grasps": 5, "config": FallbackConfig()}
     assert fallback_grasps(depth, np.zeros_like(mask), box, INTR, **kwargs) == []  # type: ignore[arg-type]
     assert fallback_grasps(np.full_like(depth, np.nan), mask, box, INTR, **kwargs) == []  # type: ignore[arg-type]
 

@@ -48,18 +48,29 @@ class FallbackConfig:
     #: the fallback's grasp scores are the sampler's times this (0.2, the networks' threshold,
     #: puts them below every network grasp: measured first, ``docs/results/sim_execution.md``)
     quality_scale: float = 1.0
+    #: the gap per side the sampler leaves between the open jaw and the object (its span limit is
+    #: the opening less twice this); None: the hand's own finger-check clearance
+    #: (``FingerGeometry.clearance``, 2 mm on the Franka hand), since every fallback grasp goes
+    #: through that check anyway. The sampler's own default, 5 mm, was the fallback's first
+    #: setting: it capped spans at 7 cm where the check allows 7.6, and the sponge (7.2 cm across)
+    #: got no grasp (``docs/results/sim_execution.md``).
+    min_clearance_m: float | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.quality_scale <= 1:
             raise ValueError(f"quality_scale {self.quality_scale}: must be in (0, 1]")
+        if self.min_clearance_m is not None and not 0 <= self.min_clearance_m < 0.05:
+            raise ValueError(f"min_clearance_m {self.min_clearance_m} m: must be in [0, 0.05)")
 
 
 def fallback_grasps(
     depth: npt.NDArray[np.floating], mask: npt.NDArray[np.bool_], box_xywh: tuple[int, int, int, int],
-    intrinsics: CameraIntrinsics, *, max_opening_m: float, max_grasps: int, config: FallbackConfig,
+    intrinsics: CameraIntrinsics, *, max_opening_m: float, min_clearance_m: float, max_grasps: int,
+    config: FallbackConfig,
 ) -> list[Grasp2D]:
     """Antipodal grasps on ``mask`` (full-frame ``[H, W]``), best first, in full-frame pixels,
-    their quality times ``config.quality_scale``."""
+    their quality times ``config.quality_scale``; spans up to ``max_opening_m`` less
+    ``min_clearance_m`` a side (``config.min_clearance_m`` overrides it when set)."""
     if not mask.any():
         return []
     h, w = mask.shape
@@ -76,7 +87,8 @@ def fallback_grasps(
     x1, y1 = min(x + bw + pad, w), min(y + bh + pad, h)
     crop_intrinsics = CameraIntrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy,
                                        intrinsics.cx - x0, intrinsics.cy - y0)
-    sampler = AntipodalConfig(max_opening_m=max_opening_m)
+    clearance = min_clearance_m if config.min_clearance_m is None else config.min_clearance_m
+    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=clearance)
     found = sample_antipodal_grasps(np.asarray(depth)[y0:y1, x0:x1], mask[y0:y1, x0:x1], crop_intrinsics,
                                     max_grasps, sampler)
     return [replace(g, center_xy=(g.center_xy[0] + x0, g.center_xy[1] + y0),
