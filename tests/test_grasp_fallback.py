@@ -168,6 +168,40 @@ def test_in_a_dev_scene_both_paths_give_the_dice_the_same_fallback_grasp() -> No
         assert (first.pose.yaw, first.quality) == pytest.approx((used.pose.yaw, used.quality))
 
 
+def test_the_fallback_leaves_the_finger_checks_clearance_so_the_sponge_gets_a_grasp() -> None:
+    """``clean/sponge/1`` (sim-val): the sponge is about as wide as the Franka hand's 7.6 cm (the
+    opening less the finger check's 2 mm a side), and no network grasp fits. The sampler's
+    own 5 mm a side capped its spans at 7 cm and left the sponge no grasp (the fallback's first
+    setting, ``FallbackConfig(min_clearance_m=0.005)``); with the hand's clearance it proposes
+    grasps across the sponge, and the finger and IK checks accept one."""
+    from craft_e.paths import SIM_VAL_LABELS
+    from craft_e.runtime.evaluation.sim_eval import (
+        default_encoder,
+        load_sim_labels,
+        make_episode_specs,
+    )
+    from craft_e.runtime.sim.env import SimEnv
+
+    labels = load_sim_labels(SIM_VAL_LABELS)
+    pairs = tuple(pair for pair in labels.pairs if (pair.verb, pair.object) == ("clean", "sponge"))
+    spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
+                if s.id == "clean/sponge/1")
+    encoder = default_encoder(1)
+    found: dict[str, list[pipeline.GraspCandidate]] = {}
+    with SimEnv() as env:
+        env.reset(spec.scene)
+        for name, fallback in (("hand", FallbackConfig()), ("sampler", FallbackConfig(min_clearance_m=0.005))):
+            env.robot.reset_home()
+            obs = env.capture()
+            eager = pipeline.perceive(env, encoder, pipeline.PipelineConfig(fallback=fallback), obs)
+            sponge = [r for r in eager.rois if r.body is not None and env.scene.body_assets[r.body] == "sponge"]
+            assert len(sponge) == 1
+            assert not any(c.fits for c in sponge[0].candidates if not c.fallback)  # no network grasp fits
+            found[name] = sponge[0].usable
+    assert not found["sampler"]
+    assert found["hand"] and all(c.fallback and c.fits for c in found["hand"])
+
+
 def test_bench_pick_settings_reads_the_fallback_setting() -> None:
     """``benchmarks/bench_pick_settings.py --setting C,M[,off|SCALE]``: the fallback comparison's
     command (docs/results/sim_execution.md) must parse what the docs quote, and refuse the rest."""

@@ -1,8 +1,9 @@
 """Geometric grasps for a region the fingers fit around none of the network's grasps on.
 
 Why: on the dev episodes some regions get no network grasp the hand can close around. GR-ConvNet
-finds no peak at all on the dice and the golf ball (4 sim-val targets; the sponge's 3 are as wide
-as the hand's opening), and elsewhere every peak may close across a section wider than the hand.
+finds no peak at all on the dice and the golf ball (4 sim-val targets), and elsewhere every peak
+may close across a section wider than the hand (the sponge, whose section at the fingers' height
+is about the Franka hand's 7.6 cm limit, in 4 sim-val episodes).
 Grounding excludes a region without a usable grasp, so the knowledge never got a say
 (``no_grasp``). A robot is not limited to one grasp detector: the analytic antipodal sampler
 (``grasp/antipodal.py``) reads the same depth image and region mask and proposes grasps across
@@ -52,8 +53,8 @@ class FallbackConfig:
     #: the opening less twice this); None: the hand's own finger-check clearance
     #: (``FingerGeometry.clearance``, 2 mm on the Franka hand), since every fallback grasp goes
     #: through that check anyway. The sampler's own default, 5 mm, was the fallback's first
-    #: setting: it capped spans at 7 cm where the check allows 7.6, and the sponge (7.2 cm across)
-    #: got no grasp (``docs/results/sim_execution.md``).
+    #: setting: it capped spans at 7 cm where the check allows 7.6, and the sponge (about as wide
+    #: as the opening) got no grasp (``docs/results/sim_execution.md``).
     min_clearance_m: float | None = None
 
     def __post_init__(self) -> None:
@@ -61,6 +62,10 @@ class FallbackConfig:
             raise ValueError(f"quality_scale {self.quality_scale}: must be in (0, 1]")
         if self.min_clearance_m is not None and not 0 <= self.min_clearance_m < 0.05:
             raise ValueError(f"min_clearance_m {self.min_clearance_m} m: must be in [0, 0.05)")
+
+    def clearance(self, hand_clearance: float) -> float:
+        """The sampler's gap per side for a hand whose finger check leaves ``hand_clearance``."""
+        return hand_clearance if self.min_clearance_m is None else self.min_clearance_m
 
 
 def fallback_grasps(
@@ -70,7 +75,7 @@ def fallback_grasps(
 ) -> list[Grasp2D]:
     """Antipodal grasps on ``mask`` (full-frame ``[H, W]``), best first, in full-frame pixels,
     their quality times ``config.quality_scale``; spans up to ``max_opening_m`` less
-    ``min_clearance_m`` a side (``config.min_clearance_m`` overrides it when set)."""
+    ``min_clearance_m`` a side (``FallbackConfig.clearance`` gives it for a hand)."""
     if not mask.any():
         return []
     h, w = mask.shape
@@ -87,8 +92,7 @@ def fallback_grasps(
     x1, y1 = min(x + bw + pad, w), min(y + bh + pad, h)
     crop_intrinsics = CameraIntrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy,
                                        intrinsics.cx - x0, intrinsics.cy - y0)
-    clearance = min_clearance_m if config.min_clearance_m is None else config.min_clearance_m
-    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=clearance)
+    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=min_clearance_m)
     found = sample_antipodal_grasps(np.asarray(depth)[y0:y1, x0:x1], mask[y0:y1, x0:x1], crop_intrinsics,
                                     max_grasps, sampler)
     return [replace(g, center_xy=(g.center_xy[0] + x0, g.center_xy[1] + y0),

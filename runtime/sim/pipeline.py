@@ -163,8 +163,7 @@ class PipelineConfig:
             "rgb_scale": self.rgb_scale,
             "refine_grasps": self.refine.enabled,
             "grasp_fallback": self.uses_fallback,
-            "fallback_clearance_m": (self.fallback.min_clearance_m if self.fallback.min_clearance_m is not None
-                                     else self.fingers.clearance) if self.uses_fallback else None,
+            "fallback_clearance_m": self.fallback.clearance(self.fingers.clearance) if self.uses_fallback else None,
         }
 
     @property
@@ -338,7 +337,8 @@ def fallback_candidates(obs: Observation, roi: Region, config: PipelineConfig) -
     x, y, w, h = roi.box_xywh
     rects = fallback_grasps(obs.depth, roi.mask, (int(x), int(y), int(w), int(h)), obs.intrinsics,
                             max_opening_m=2 * config.fingers.half_opening,
-                            min_clearance_m=config.fingers.clearance, max_grasps=config.max_grasps,
+                            min_clearance_m=config.fallback.clearance(config.fingers.clearance),
+                            max_grasps=config.max_grasps,
                             config=config.fallback)
     return [replace(c, fallback=True) for c in _with_poses(obs, rects)]
 
