@@ -31,6 +31,19 @@ def methods(kbs: RuntimeKBs, tmp: Path) -> list[MethodSpec]:
     return specs
 
 
+def test_unset_energy_weights_become_the_defaults_and_set_ones_are_kept() -> None:
+    """Every command turns unset ``--beta``/``--gamma`` into numbers through ``energy_weights``
+    (``craft eval`` via ``default_methods``, ``craft sim demo`` directly), so they cannot drift."""
+    from craft_e.runtime.evaluation.methods import energy_weights
+    from craft_e.runtime.grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA
+
+    assert energy_weights() == (DEFAULT_BETA, DEFAULT_GAMMA)
+    assert energy_weights(1.0, None) == (1.0, DEFAULT_GAMMA)
+    assert energy_weights(None, 0.0) == (DEFAULT_BETA, 0.0)  # 0 is a weight, not "unset"
+    craft_e = default_methods(beta=2.0)[0]
+    assert (craft_e.beta, craft_e.gamma) == (2.0, DEFAULT_GAMMA)
+
+
 def test_dataset_has_two_photos_for_crane_and_cardigan() -> None:
     data = load_dataset()
     assert len(data.classes) == 216 and len(data.images) == 218

@@ -50,7 +50,7 @@ def demo(
 ) -> None:
     """Run one episode: capture, ROIs, grasps, grounding, pick; write the paper's figure and a GIF."""
     from ...paths import KB_DIR, SIM_DEV_LABELS
-    from ..evaluation.methods import MethodSpec, build_grounders
+    from ..evaluation.methods import MethodSpec, build_grounders, energy_weights
     from ..evaluation.sim_eval import (
         LabelsError,
         SimLabels,
@@ -60,7 +60,7 @@ def demo(
         make_episode_specs,
     )
     from ..grounding.grounder import normalize_verb_name
-    from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, GroundingSettings
+    from ..grounding.settings import GroundingSettings
     from ..grounding.size_cue import CueUnavailableError
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.env import SimEnv
@@ -109,8 +109,8 @@ def demo(
     method = bundle.manifest.kb_name
     encoder = default_encoder(threads)
     try:
-        spec_m = MethodSpec(method, "demo", bundle_path, beta=DEFAULT_BETA if beta is None else beta,
-                            gamma=DEFAULT_GAMMA if gamma is None else gamma)
+        weight_b, weight_g = energy_weights(beta, gamma)
+        spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)
         grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,
                                                                         lookalikes=lookalikes),
                                     sim_vocabulary())

@@ -36,12 +36,17 @@ class MethodSpec:
     gamma: float = DEFAULT_GAMMA
 
 
+def energy_weights(beta: float | None = None, gamma: float | None = None) -> tuple[float, float]:
+    """``(beta, gamma)``, each ``None`` replaced by its default (``docs/energy_weights.md``): the
+    one place a command's unset weight options become numbers."""
+    return (DEFAULT_BETA if beta is None else beta, DEFAULT_GAMMA if gamma is None else gamma)
+
+
 def default_methods(kb: Path | None = None, kb_dir: Path = KB_DIR, *,
                     beta: float | None = None, gamma: float | None = None) -> list[MethodSpec]:
     """CRAFT-E, CRAFT (ConceptNet KB), direct-LLM, and the two single-term ablations, at the
     weights ``beta``/``gamma`` (``None``: the defaults); each ablation keeps its one term's."""
-    b = DEFAULT_BETA if beta is None else beta
-    g = DEFAULT_GAMMA if gamma is None else gamma
+    b, g = energy_weights(beta, gamma)
     craft_e = kb or kb_dir / "craft-e-default"
     return [
         MethodSpec("CRAFT-E", "LLM property KB + visual alignment", craft_e, beta=b, gamma=g),
