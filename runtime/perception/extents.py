@@ -21,8 +21,8 @@ def measure_extents(points: npt.NDArray[np.floating], table_z: float) -> tuple[f
     """``points`` ``[M, 3]`` (world frame, z up; NaN rows ignored) of one object above a table at
     ``table_z``; ``None`` when too few points to measure."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    # a row is finite iff its sum is (metres: no overflow); three vector adds, several times
-    # faster than numpy's sum over an axis of length 3
+    # a row is finite iff its sum is (metres: no overflow); three vector adds, faster than
+    # numpy's sum over an axis of length 3
     pts = pts[np.isfinite(pts[:, 0] + pts[:, 1] + pts[:, 2])]
     if len(pts) < MIN_POINTS:
         return None

@@ -75,7 +75,7 @@ def fit_plane(points: FloatArray, config: PlaneFitConfig | None = None) -> tuple
     """
     cfg = config or PlaneFitConfig()
     # a row is finite iff its sum is (metres: no overflow); the columns added as three vector
-    # adds, ~6x faster than numpy's sum over an axis of length 3 (the mask is the same)
+    # adds, faster than numpy's sum over an axis of length 3 (the mask is the same)
     pts = points[np.isfinite(points[:, 0] + points[:, 1] + points[:, 2])]
     if len(pts) < 3:
         raise ValueError("need at least 3 valid depth points to fit a plane")
@@ -104,8 +104,8 @@ def _draws(
 
     Why cached: the draws depend on the point count and the settings only (the generator is
     seeded per fit), and a fixed camera with full depth sees the same count every frame. Drawing
-    them (a permutation and 200 separate ``rng.choice`` calls) was half of the plane fit's time
-    on the robot's path; a cached draw is the same integers, so the same plane bit for bit."""
+    them (a permutation and 200 separate ``rng.choice`` calls) was about half of the plane fit's
+    time on the robot's path (an ad-hoc timing); a cached draw is the same integers, so the same plane bit for bit."""
     rng = np.random.default_rng(seed)
     chosen = None if count <= max_samples else rng.choice(count, max_samples, replace=False)
     size = count if chosen is None else max_samples
