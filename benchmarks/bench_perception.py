@@ -22,11 +22,12 @@ rewrites), and its checks' time is printed beside for reference.
 The floor is the same grasp-network pass (``predict_frame`` on the same crop: pre-processing,
 network, smoothing) plus the same batched encoder pass on the same crops, measured in the same run
 on the same scenes, with the networks the robot runs (their inference rewrites, ``fused=True`` and
-``inference_encoder``). Within each scene the repeats alternate which is timed first, the robot's
-path or the floor (even repeats: the robot first), because whichever runs first after other work
-was measured slower: with the floor always second, both of its passes came out 7-23 ms/scene
-faster than the same passes inside the robot's path; with the order swapped the gap nearly
-vanished (ad-hoc runs on this 2-core host, 2026-12-04). Output: a per-stage table and, with ``--json OUT``,
+``inference_encoder``). Timed runs alternate which goes first, the robot's path or the floor
+(the first timed run robot first, the next floor first, counted across scenes, so an odd
+``--repeats`` alternates too), because the order was measured to matter: with the floor always
+second, the robot's ``grasp_net`` stage came out 7, 16 and 23 ms/scene slower than the floor's
+grasp-network pass in three runs, and 5, 5 and 7 ms with the floor first (ad-hoc runs on this
+2-core host, 2026-12-04). Output: a per-stage table and, with ``--json OUT``,
 ``{"robot_s_per_scene", "floor_s_per_scene", "ratio", "stages": {...}}``.
 
 Run: ``.venv/bin/python benchmarks/bench_perception.py [--scenes 6] [--threads 2] [--json OUT]``.
@@ -103,8 +104,8 @@ def _rect_gap(a: object, b: object) -> float:
 
 
 def _time_floor(cfg: PipelineConfig, obs: Observation, masks: list[BoolMask], crops: list[UInt8Image],
-                encoder: ImageEncoder, threads: int) -> tuple[float, float, float]:
-    """The floor's two passes on one scene: (start, after the grasp network, after the encoder)."""
+                encoder: ImageEncoder, threads: int) -> tuple[float, float]:
+    """The floor's two passes on one scene: (grasp-network seconds, encoder seconds)."""
     from craft_e.runtime.grasp.predict import predict_frame
 
     with torch_threads(threads):
@@ -115,7 +116,7 @@ def _time_floor(cfg: PipelineConfig, obs: Observation, masks: list[BoolMask], cr
         if crops:
             encoder.embed_images(crops)
         t3 = time.perf_counter()
-    return t1, t2, t3
+    return t2 - t1, t3 - t2
 
 
 def main() -> None:
@@ -143,6 +144,7 @@ def main() -> None:
     floor = {"grasp_net_frame": 0.0, "encode": 0.0}
     rois_total, plans, agree, eager_checks, worst_gap = 0, 0, 0, 0.0, 0.0
     relocated, same_move = 0, 0
+    timed_runs = 0  # robot first on even counts, floor first on odd: see the module docstring
     load = os.getloadavg()
     if args.threads > 1 and load[0] > 1.0:
         print(f"note: load average {load[0]:.1f} at the start: other jobs share the cores, so "
@@ -159,9 +161,11 @@ def main() -> None:
             eager_choice = grounder.ground(spec.verb, grounding_rois(eager)).chosen
             masks = [r.roi.mask for r in eager.rois]
             crops = [crop_box(sharp, tuple(v * cfg.rgb_scale for v in r.roi.box_xywh)) for r in eager.rois]
-            for repeat in range(args.repeats):
-                if repeat % 2 == 1:  # odd repeats time the floor first: see the module docstring
-                    t1, t2, t3 = _time_floor(cfg, obs, masks, crops, fast_enc, args.threads)
+            for _ in range(args.repeats):
+                robot_first = timed_runs % 2 == 0
+                timed_runs += 1
+                if not robot_first:
+                    floor_net, floor_enc = _time_floor(cfg, obs, masks, crops, fast_enc, args.threads)
                 timings: dict[str, float] = {}
                 frame = dataclasses.replace(obs)  # a new frame: its 3D points are computed in the timed stages
                 lazy = perceive_for_pick(env, enc, cfg, frame, timings=timings)
@@ -185,12 +189,12 @@ def main() -> None:
                 if eager_choice is not None and eager_choice.grasp is not None and picked is not None:
                     eager_moved, _ = relocated_grasp(env, obs, eager.rois[eager_choice.index], eager_choice.grasp, cfg)
                     same_move += int(_rect_gap(picked, eager_moved) <= GRASP_TOL)
-                if repeat % 2 == 0:
-                    t1, t2, t3 = _time_floor(cfg, obs, masks, crops, fast_enc, args.threads)
+                if robot_first:
+                    floor_net, floor_enc = _time_floor(cfg, obs, masks, crops, fast_enc, args.threads)
                 for k in stages:
                     stages[k] += timings.get(k, 0.0)
-                floor["grasp_net_frame"] += t2 - t1
-                floor["encode"] += t3 - t2
+                floor["grasp_net_frame"] += floor_net
+                floor["encode"] += floor_enc
                 rois_total += len(lazy)
                 eager_checks += eager_t["grasp_checks"]
     n = len(specs) * args.repeats
@@ -218,7 +222,8 @@ def main() -> None:
             "robot_s_per_scene": round(robot, 4), "floor_s_per_scene": round(floor_s, 4),
             "ratio": round(robot / floor_s, 3), "stages": {k: round(v, 4) for k, v in per_stage.items()},
             "floor": {k: round(v / n, 4) for k, v in floor.items()}, "scenes": len(specs),
-            "repeats": args.repeats, "order": "alternating (even repeats: robot first)", "rois_per_scene": rois_total / n, "torch_threads": args.threads,
+            "repeats": args.repeats, "order": "alternating (robot first, then floor first)",
+            "rois_per_scene": rois_total / n, "torch_threads": args.threads,
             "grasp_fallback": cfg.uses_fallback,
             "torch_version": torch.__version__, "cpus": os.cpu_count(),
             "load_average": [round(load[0], 2), round(load_after[0], 2)],
