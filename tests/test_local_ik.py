@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from craft_e.runtime.sim.gripper import GripperConfig
-from craft_e.runtime.sim.kinematics import load_chain
+from craft_e.runtime.sim.kinematics import axis_angle_matrix, load_chain
 from craft_e.runtime.sim.local_ik import ChainIK
 from craft_e.runtime.sim.robot import HOME_Q, CR3Robot, top_down_rotation
 from craft_e.runtime.sim.robot_urdf import TCP_LINK, robot_urdf_path
@@ -96,3 +96,77 @@ def test_straight_line_plans_agree_with_pybullet(bare_robot: Callable[..., CR3Ro
         assert [s.ok(local.config) for s in ours] == [s.ok(reference.config) for s in theirs]
         assert float(np.abs(ours[-1].q - theirs[-1].q).max()) < 0.1
         assert max(s.position_error for s in ours) < 1e-6
+
+
+def _numpy_reference_solve(
+    ik: ChainIK, rotation: np.ndarray, position: np.ndarray, seed: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``ChainIK.solve`` as it was written before its elementwise parts moved to Python floats:
+    every step on numpy arrays (the oracle that the faster form must equal bit for bit)."""
+    cfg = ik.config
+    target = np.asarray(position, dtype=np.float64)
+    q = np.array(seed, dtype=np.float64)
+    for step in range(cfg.max_steps + 1):
+        end, frames = ik._walk(q)
+        turn = rotation @ end[:3, :3].T
+        r = turn.tolist()
+        skew = np.array([r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]]) * 0.5
+        cosine = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0)
+        if cosine <= 0.999:
+            sine = float(np.linalg.norm(skew))
+            skew = skew * (math.atan2(sine, cosine) / sine) if sine > 1e-12 else skew
+        residual = np.concatenate([target - end[:3, 3], skew])
+        cos_angle = 0.5 * (float(np.trace(turn)) - 1.0)
+        if step == 0 and (float(np.linalg.norm(residual[:3])) > cfg.max_seed_distance
+                          or cos_angle < math.cos(cfg.max_seed_angle)):
+            return None
+        if float(np.abs(residual).max()) <= cfg.tolerance:
+            return (q, end[:3, :3], end[:3, 3]) if cos_angle > 0.0 else None
+        if step == cfg.max_steps:
+            return None
+        axes = frames[:, :3, :3] @ ik._axes[:, :, None]
+        lever = end[:3, 3, None] - frames[:, :3, 3, None]
+        jacobian = np.empty((6, len(axes)))
+        jacobian[0] = axes[:, 1, 0] * lever[:, 2, 0] - axes[:, 2, 0] * lever[:, 1, 0]
+        jacobian[1] = axes[:, 2, 0] * lever[:, 0, 0] - axes[:, 0, 0] * lever[:, 2, 0]
+        jacobian[2] = axes[:, 0, 0] * lever[:, 1, 0] - axes[:, 1, 0] * lever[:, 0, 0]
+        jacobian[3:] = axes[:, :, 0].T
+        try:
+            delta = np.linalg.solve(jacobian, residual)
+        except np.linalg.LinAlgError:
+            return None
+        if float(np.abs(delta).max()) > cfg.max_joint_step:
+            return None
+        q = q + delta
+    return None
+
+
+def test_newton_equals_its_all_numpy_form_bit_for_bit() -> None:
+    """The solver's residual, Jacobian and checks run on Python floats for speed; IK answers
+    decide reachability and the joints the arm follows, so they must not move by a single bit
+    (else every sim table would change): compared with the all-numpy form on seeded near and
+    far, reachable and unreachable waypoints, including a singular pose (the arm stretched)."""
+    ik = ChainIK(load_chain(robot_urdf_path(GripperConfig().hand), TCP_LINK))
+    rng = np.random.default_rng(7)
+    solved = declined = 0
+    for i in range(400):
+        q = np.asarray(HOME_Q) + rng.normal(scale=0.6, size=6)
+        rotation, position = ik.pose(q)
+        turn = rng.normal(scale=0.05 if i % 4 else 0.8, size=3)
+        angle = float(np.linalg.norm(turn))
+        target_rotation = axis_angle_matrix(turn / angle, angle) @ rotation
+        target = position + rng.normal(scale=0.012 if i % 5 else 0.04, size=3)
+        seed = q + rng.normal(scale=0.01, size=6)
+        ours, reference = ik.solve(target_rotation, target, seed), _numpy_reference_solve(ik, target_rotation, target, seed)
+        assert (ours is None) == (reference is None)
+        if ours is not None and reference is not None:
+            solved += 1
+            for a, b in zip(ours, reference, strict=True):
+                assert np.array_equal(a, b)
+        else:
+            declined += 1
+    stretched = np.zeros(6)  # every joint at zero: the arm straight up, its Jacobian singular
+    rotation, position = ik.pose(stretched)
+    assert (ik.solve(rotation, position + 0.001, stretched) is None) == (
+        _numpy_reference_solve(ik, rotation, position + 0.001, stretched) is None)
+    assert solved > 200 and declined > 20

@@ -23,11 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from numpy.linalg import _umath_linalg
 
 from .kinematics import SerialChain
 
 FloatArray = npt.NDArray[np.float64]
 _EYE3 = np.eye(3)
+# numpy.linalg.solve's own kernel (one right-hand side) without its wrapper's checks, which cost
+# more than the 6x6 solve; the same LAPACK call, so the same answer (tests/test_local_ik.py)
+_solve_linear = _umath_linalg.solve1
 
 
 @dataclass(frozen=True)
@@ -74,6 +78,8 @@ class ChainIK:
         k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = self._axes[:, 2], -self._axes[:, 1], self._axes[:, 0]
         self._cross, self._cross2 = k, k @ k  # Rodrigues' formula, per joint
         self._tail = pending  # fixed transform from the last joint to the end link
+        self._motion_template = np.zeros_like(self._origins)  # each joint's motion, less its rotation
+        self._motion_template[:, 3, 3] = 1.0
 
     @property
     def dof(self) -> int:
@@ -88,16 +94,13 @@ class ChainIK:
         """End pose ``[4, 4]`` and each joint's frame ``[n, 4, 4]`` (after its motion, which
         leaves the joint's origin and axis where they were)."""
         angles = np.asarray(q, dtype=np.float64)[:, None, None]
-        motion = np.zeros_like(self._origins)
+        motion = self._motion_template.copy()
         motion[:, :3, :3] = _EYE3 + np.sin(angles) * self._cross + (1.0 - np.cos(angles)) * self._cross2
-        motion[:, 3, 3] = 1.0
         local = self._origins @ motion  # [n, 4, 4], one batched product
         frames = np.empty_like(local)
-        pose = local[0]
-        frames[0] = pose
+        pose = frames[0] = local[0]
         for i in range(1, len(local)):
-            pose = pose @ local[i]
-            frames[i] = pose
+            pose = frames[i] = pose @ local[i]
         return pose @ self._tail, frames
 
     def solve(
@@ -105,51 +108,62 @@ class ChainIK:
     ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
         """Joints that put the end link at ``(rotation, position)`` (root frame), by Newton steps
         from ``seed``, with the end link's rotation and position they reach; None if the seed is
-        not close or the steps do not converge."""
+        not close or the steps do not converge.
+
+        The residual, the Jacobian's cross products and the checks are elementwise, so they run
+        on Python floats (the same IEEE operations in the same order as on numpy arrays, at a
+        fraction of the per-call cost); the matrix products, the norm and the linear solve stay
+        in numpy, whose kernels may fuse and reorder (``tests/test_local_ik.py`` pins the answers
+        bit for bit against the all-numpy form).
+        """
         cfg = self.config
-        target = np.asarray(position, dtype=np.float64)
+        tx, ty, tz = np.asarray(position, dtype=np.float64).tolist()
         q = np.array(seed, dtype=np.float64)
-        for step in range(cfg.max_steps + 1):
-            end, frames = self._walk(q)
-            turn = rotation @ end[:3, :3].T
-            residual = np.concatenate([target - end[:3, 3], _orientation_error(turn)])
-            if step == 0 and (float(np.linalg.norm(residual[:3])) > cfg.max_seed_distance
-                              or _cos_angle(turn) < math.cos(cfg.max_seed_angle)):
-                return None
-            if float(np.abs(residual).max()) <= cfg.tolerance:
-                return (q, end[:3, :3], end[:3, 3]) if _cos_angle(turn) > 0.0 else None  # sin is 0 at pi too
-            if step == cfg.max_steps:
-                return None
-            axes = frames[:, :3, :3] @ self._axes[:, :, None]  # [n, 3, 1] in the root frame
-            lever = end[:3, 3, None] - frames[:, :3, 3, None]  # [n, 3, 1]
-            jacobian = np.empty((6, len(axes)))
-            jacobian[0] = axes[:, 1, 0] * lever[:, 2, 0] - axes[:, 2, 0] * lever[:, 1, 0]  # axis x lever
-            jacobian[1] = axes[:, 2, 0] * lever[:, 0, 0] - axes[:, 0, 0] * lever[:, 2, 0]
-            jacobian[2] = axes[:, 0, 0] * lever[:, 1, 0] - axes[:, 1, 0] * lever[:, 0, 0]
-            jacobian[3:] = axes[:, :, 0].T
-            try:
-                delta = np.linalg.solve(jacobian, residual)
-            except np.linalg.LinAlgError:
-                return None
-            if float(np.abs(delta).max()) > cfg.max_joint_step:
-                return None
-            q = q + delta
+        axes_local = self._axes[:, :, None]
+        with np.errstate(invalid="ignore"):  # a singular Jacobian solves to NaN: declined below
+            for step in range(cfg.max_steps + 1):
+                end, frames = self._walk(q)
+                turn = (rotation @ end[:3, :3].T).tolist()
+                px, py, pz = end[:3, 3].tolist()
+                residual = [tx - px, ty - py, tz - pz, *_orientation_error(turn)]
+                cosine = 0.5 * (turn[0][0] + turn[1][1] + turn[2][2] - 1.0)  # of the remaining turn's angle
+                if step == 0 and (float(np.linalg.norm(np.array(residual[:3]))) > cfg.max_seed_distance
+                                  or cosine < math.cos(cfg.max_seed_angle)):
+                    return None
+                if all(abs(v) <= cfg.tolerance for v in residual):  # False for NaN, as numpy's max
+                    return (q, end[:3, :3], end[:3, 3]) if cosine > 0.0 else None  # sin is 0 at pi too
+                if step == cfg.max_steps:
+                    return None
+                axes = (frames[:, :3, :3] @ axes_local)[:, :, 0].tolist()  # each joint's axis, root frame
+                origins = frames[:, :3, 3].tolist()
+                rows: list[list[float]] = [[], [], [], [], [], []]
+                for (ax, ay, az), (ox, oy, oz) in zip(axes, origins, strict=True):
+                    lx, ly, lz = px - ox, py - oy, pz - oz  # lever from the joint to the end link
+                    rows[0].append(ay * lz - az * ly)  # axis x lever
+                    rows[1].append(az * lx - ax * lz)
+                    rows[2].append(ax * ly - ay * lx)
+                    rows[3].append(ax)
+                    rows[4].append(ay)
+                    rows[5].append(az)
+                delta = _solve_linear(np.array(rows), np.array(residual), signature="dd->d")
+                if not all(abs(v) <= cfg.max_joint_step for v in delta.tolist()):  # NaN too
+                    return None
+                q = q + delta
         return None
 
 
-def _orientation_error(rotation: FloatArray) -> FloatArray:
-    """Rotation vector (axis times angle) of ``rotation``, the orientation residual Newton drives
-    to zero. Near the identity, where Newton spends its steps, ``sin(angle) * axis`` (the skew
-    part) equals it to first order and costs a fraction of the logarithm."""
-    r = rotation.tolist()
-    skew = np.array([r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]]) * 0.5
+def _orientation_error(rotation: list[list[float]]) -> list[float]:
+    """Rotation vector (axis times angle) of ``rotation`` (rows of Python floats), the orientation
+    residual Newton drives to zero. Near the identity, where Newton spends its steps,
+    ``sin(angle) * axis`` (the skew part) equals it to first order and costs a fraction of the
+    logarithm."""
+    r = rotation
+    skew = [(r[2][1] - r[1][2]) * 0.5, (r[0][2] - r[2][0]) * 0.5, (r[1][0] - r[0][1]) * 0.5]
     cosine = 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0)
     if cosine > 0.999:
         return skew
-    sine = float(np.linalg.norm(skew))
-    return skew * (math.atan2(sine, cosine) / sine) if sine > 1e-12 else skew
-
-
-def _cos_angle(rotation: FloatArray) -> float:
-    """Cosine of ``rotation``'s angle, which tells a small angle from one near pi."""
-    return 0.5 * (float(np.trace(rotation)) - 1.0)
+    sine = float(np.linalg.norm(np.array(skew)))
+    if sine <= 1e-12:
+        return skew
+    scale = math.atan2(sine, cosine) / sine
+    return [v * scale for v in skew]
