@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
@@ -108,3 +109,46 @@ def test_gripper_opens_and_closes_on_nothing(robot: CR3Robot) -> None:
     assert robot.gripper.width() < robot.gripper.config.min_held_width
     assert robot.gripper.check_grasp() is None
     robot.gripper.open()
+
+
+#: The arm at the end of a lift in sim-val's carry/mug/0 (the mug's fitting grasp at x = 0.53 m):
+#: reached out with the elbow nearly straight (joint3 = -0.039), where the Jacobian is singular.
+STRETCHED_Q = np.array([-0.060, -0.973, -0.039, -0.559, 1.571, 0.225])
+DROP_ZONE_AT_LIFT_HEIGHT = (0.02, -0.40, 0.203)
+
+
+def test_a_missed_waypoint_from_a_stretched_arm_is_reached_in_half_steps(
+    bare_robot: Callable[..., CR3Robot],
+) -> None:
+    """Why: this carry was reported "drop zone unreachable" and a fitting grasp was rejected,
+    because the first 2 cm back towards the base from a straight elbow needs ~0.4 rad of elbow
+    at once. Without the split the first waypoint is missed (by ~1 cm); with it, every waypoint
+    of the line is reached, in the same elbow branch as the arm's home posture (joint3 < 0),
+    and the extra waypoints lie on the same straight line."""
+    split, single = bare_robot(), bare_robot()
+    single.config = dataclasses.replace(single.config, ik_split_failed=0)
+    yaw = -math.pi
+    missed = single.plan_linear(STRETCHED_Q, DROP_ZONE_AT_LIFT_HEIGHT, yaw)
+    assert not missed[0].ok(single.config) and missed[0].position_error > 0.005
+    line = split.plan_linear(STRETCHED_Q, DROP_ZONE_AT_LIFT_HEIGHT, yaw)
+    assert all(s.ok(split.config) for s in line)
+    assert len(line) == len(missed) + 1  # one waypoint split in two
+    assert line[1].q[2] < -0.2  # the elbow bent, on home's side
+    start = split.forward(STRETCHED_Q).position
+    goal = np.array(DROP_ZONE_AT_LIFT_HEIGHT)
+    for s in line:
+        tcp = split.forward(s.q).position
+        off_line = np.linalg.norm(np.cross(tcp - start, goal - start)) / np.linalg.norm(goal - start)
+        assert off_line < 0.005
+    assert np.linalg.norm(split.forward(line[-1].q).position - goal) < 0.005
+
+
+def test_a_line_that_never_misses_is_planned_as_before(bare_robot: Callable[..., CR3Robot]) -> None:
+    """The split only runs on a miss: a reachable line gets the same waypoints, bit for bit."""
+    split, single = bare_robot(), bare_robot()
+    single.config = dataclasses.replace(single.config, ik_split_failed=0)
+    start_q = split.solve_ik((0.35, 0.05, 0.20), 0.3).q
+    a = split.plan_linear(start_q, (0.30, -0.20, 0.15), 0.3)
+    b = single.plan_linear(start_q, (0.30, -0.20, 0.15), 0.3)
+    assert all(s.ok(split.config) for s in a) and len(a) == len(b) > 5
+    assert all(np.array_equal(x.q, y.q) for x, y in zip(a, b, strict=True))

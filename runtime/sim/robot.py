@@ -82,6 +82,12 @@ class ArmConfig:
     ik_position_tol: float = 0.005  # m, the brief's "within 5 mm"
     ik_angle_tol: float = 0.035  # rad (2 degrees)
     cartesian_step: float = 0.02  # m between IK waypoints on straight-line moves
+    # A waypoint of a straight-line move that IK misses is tried again in this many equal
+    # sub-steps from the last good one (0: never). From a stretched arm (elbow near straight, a
+    # singular Jacobian) the first 2 cm back towards the base needs the elbow to bend by ~0.4 rad
+    # at once: Newton declines so long a step and pybullet's damped solver stops ~1 cm short,
+    # which rejected reachable picks ("drop zone unreachable"); half steps get there.
+    ik_split_failed: int = 2
     time_step: float = 1.0 / 240.0
 
 
@@ -317,24 +323,53 @@ class CR3Robot:
         """IK waypoints every ``cartesian_step`` along the straight TCP line to ``target``.
 
         Each waypoint is seeded with the previous one, so the arm keeps one posture along the
-        line. Returns all waypoints; callers check ``ok`` on each.
+        line. The first waypoint IK misses is tried again in ``ik_split_failed`` sub-steps from
+        the last good one; if they all succeed they join the line (a finer stretch of the same
+        straight path), else the miss stays. Returns all waypoints; callers check ``ok`` on each.
         """
         start = self.forward(start_q).position
         goal = np.asarray(target, dtype=np.float64)
         n = max(1, math.ceil(float(np.linalg.norm(goal - start)) / self.config.cartesian_step))
         seed = start_q
         solutions: list[IKSolution] = []
+        intact = True  # every waypoint so far is good: only then is a miss worth a retry
         for i in range(1, n + 1):
             solution = self.solve_ik(start + (goal - start) * i / n, yaw, seed=seed)
+            split = False
+            if intact and not solution.ok(self.config):
+                previous = solutions[-1].q if solutions else start_q
+                finer = self._split_step(previous, start + (goal - start) * (i - 1) / n,
+                                         start + (goal - start) * i / n, yaw)
+                if finer is not None:
+                    solutions.extend(finer[:-1])
+                    solution, split = finer[-1], True
+                else:
+                    intact = False
             solutions.append(solution)
             # Newton IK's next seed continues the last step (the joints move smoothly along a
             # line): it starts closer and needs one step fewer, converging to the same posture.
+            # Not after a split, whose last step is shorter than the next.
             seed = solution.q
-            if self.config.ik_local and len(solutions) > 1:
+            if self.config.ik_local and len(solutions) > 1 and not split:
                 step = solution.q - solutions[-2].q
                 if float(np.abs(step).max()) < 0.2:
                     seed = solution.q + step
         return solutions
+
+    def _split_step(self, seed: FloatArray, frm: FloatArray, to: FloatArray, yaw: float) -> list[IKSolution] | None:
+        """The waypoints of ``ik_split_failed`` equal sub-steps from ``frm`` (where the arm is at
+        ``seed``) to ``to``, each seeded with the last, or None if one of them is missed too."""
+        k = self.config.ik_split_failed
+        if k < 2:
+            return None
+        out: list[IKSolution] = []
+        for j in range(1, k + 1):
+            solution = self.solve_ik(frm + (to - frm) * j / k, yaw, seed=seed)
+            if not solution.ok(self.config):
+                return None
+            out.append(solution)
+            seed = solution.q
+        return out
 
     # ---------------------------------------------------------------- motion
     def _command(self, q: FloatArray) -> None:
