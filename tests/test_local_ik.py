@@ -170,3 +170,20 @@ def test_newton_equals_its_all_numpy_form_bit_for_bit() -> None:
     assert (ik.solve(rotation, position + 0.001, stretched) is None) == (
         _numpy_reference_solve(ik, rotation, position + 0.001, stretched) is None)
     assert solved > 200 and declined > 20
+
+
+def test_the_public_solve_is_the_fallback_with_the_same_answers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fast path calls numpy's private solve kernel; a numpy without it must still work and
+    give the same joints (the public ``numpy.linalg.solve`` wraps the same kernel)."""
+    import craft_e.runtime.sim.local_ik as local_ik
+
+    ik = ChainIK(load_chain(robot_urdf_path(GripperConfig().hand), TCP_LINK))
+    rotation, position = ik.pose(HOME_Q)
+    target = position + np.array([0.012, -0.008, 0.004])
+    fast = ik.solve(rotation, target, HOME_Q)
+    monkeypatch.setattr(local_ik, "_SOLVE1", None)
+    public = ik.solve(rotation, target, HOME_Q)
+    assert fast is not None and public is not None
+    assert all(np.array_equal(a, b) for a, b in zip(fast, public, strict=True))
+    singular = np.zeros((6, 6))
+    assert np.isnan(local_ik._solve_linear(singular, np.ones(6))).all()

@@ -20,18 +20,42 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from numpy.linalg import _umath_linalg
 
 from .kinematics import SerialChain
 
 FloatArray = npt.NDArray[np.float64]
 _EYE3 = np.eye(3)
-# numpy.linalg.solve's own kernel (one right-hand side) without its wrapper's checks, which cost
-# more than the 6x6 solve; the same LAPACK call, so the same answer (tests/test_local_ik.py)
-_solve_linear = _umath_linalg.solve1
+
+
+def _solve_linear(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``numpy.linalg.solve(a, b)`` for one right-hand side, NaN where ``a`` is singular.
+
+    Calls numpy's own kernel (the gufunc ``numpy.linalg.solve`` wraps) without the wrapper's
+    checks, which cost more than a 6x6 solve: the same LAPACK call, so the same answer
+    (``tests/test_local_ik.py``). The kernel lives in a private module; a numpy without it
+    gets the public function, which gives the same answers at the wrapper's cost."""
+    if _SOLVE1 is None:
+        try:
+            return np.linalg.solve(a, b)
+        except np.linalg.LinAlgError:
+            return np.full(len(b), np.nan)
+    out: FloatArray = _SOLVE1(a, b, signature="dd->d")
+    return out
+
+
+def _private_solve_kernel() -> Any:
+    try:
+        from numpy.linalg import _umath_linalg
+    except ImportError:
+        return None
+    return getattr(_umath_linalg, "solve1", None)
+
+
+_SOLVE1 = _private_solve_kernel()
 
 
 @dataclass(frozen=True)
@@ -145,7 +169,7 @@ class ChainIK:
                     rows[3].append(ax)
                     rows[4].append(ay)
                     rows[5].append(az)
-                delta = _solve_linear(np.array(rows), np.array(residual), signature="dd->d")
+                delta = _solve_linear(np.array(rows), np.array(residual))
                 if not all(abs(v) <= cfg.max_joint_step for v in delta.tolist()):  # NaN too
                     return None
                 q = q + delta
