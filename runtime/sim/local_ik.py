@@ -40,7 +40,8 @@ def _solve_linear(a: FloatArray, b: FloatArray) -> FloatArray:
     gets the public function, which gives the same answers at the wrapper's cost."""
     if _SOLVE1 is None:
         try:
-            return np.linalg.solve(a, b)
+            solved: FloatArray = np.linalg.solve(a, b).astype(np.float64, copy=False)
+            return solved
         except np.linalg.LinAlgError:
             return np.full(len(b), np.nan)
     out: FloatArray = _SOLVE1(a, b, signature="dd->d")
