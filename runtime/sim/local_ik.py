@@ -49,6 +49,7 @@ def _solve_linear(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def _private_solve_kernel() -> Any:
+    """numpy's ``solve1`` gufunc (``_solve_linear``), or None where this numpy has no such module."""
     try:
         from numpy.linalg import _umath_linalg
     except ImportError:

@@ -83,10 +83,10 @@ class ArmConfig:
     ik_angle_tol: float = 0.035  # rad (2 degrees)
     cartesian_step: float = 0.02  # m between IK waypoints on straight-line moves
     # A waypoint of a straight-line move that IK misses is tried again in this many equal
-    # sub-steps from the last good one (0: never). From a stretched arm (elbow near straight, a
-    # singular Jacobian) the first 2 cm back towards the base needs the elbow to bend by ~0.4 rad
-    # at once: Newton declines so long a step and pybullet's damped solver stops ~1 cm short,
-    # which rejected reachable picks ("drop zone unreachable"); half steps get there.
+    # sub-steps from the last good one (below 2: never). From a stretched arm (elbow near
+    # straight, a singular Jacobian) the first 2 cm back towards the base needs the elbow to bend
+    # by ~0.4 rad at once: Newton declines so long a step and pybullet's damped solver stops
+    # ~1 cm short, which rejected reachable picks ("drop zone unreachable"); half steps get there.
     ik_split_failed: int = 2
     time_step: float = 1.0 / 240.0
 
@@ -323,9 +323,10 @@ class CR3Robot:
         """IK waypoints every ``cartesian_step`` along the straight TCP line to ``target``.
 
         Each waypoint is seeded with the previous one, so the arm keeps one posture along the
-        line. The first waypoint IK misses is tried again in ``ik_split_failed`` sub-steps from
-        the last good one; if they all succeed they join the line (a finer stretch of the same
-        straight path), else the miss stays. Returns all waypoints; callers check ``ok`` on each.
+        line. While every waypoint so far is good, one that IK misses is tried again in
+        ``ik_split_failed`` sub-steps from the last good one; if they all succeed they join the
+        line (a finer stretch of the same straight path), else the miss stays and the rest of the
+        line is solved as before. Returns all waypoints; callers check ``ok`` on each.
         """
         start = self.forward(start_q).position
         goal = np.asarray(target, dtype=np.float64)
@@ -333,13 +334,13 @@ class CR3Robot:
         seed = start_q
         solutions: list[IKSolution] = []
         intact = True  # every waypoint so far is good: only then is a miss worth a retry
+        point = start
         for i in range(1, n + 1):
-            solution = self.solve_ik(start + (goal - start) * i / n, yaw, seed=seed)
+            last, point = point, start + (goal - start) * i / n
+            solution = self.solve_ik(point, yaw, seed=seed)
             split = False
             if intact and not solution.ok(self.config):
-                previous = solutions[-1].q if solutions else start_q
-                finer = self._split_step(previous, start + (goal - start) * (i - 1) / n,
-                                         start + (goal - start) * i / n, yaw)
+                finer = self._split_step(solutions[-1].q if solutions else start_q, last, point, yaw)
                 if finer is not None:
                     solutions.extend(finer[:-1])
                     solution, split = finer[-1], True
