@@ -1,4 +1,4 @@
-"""The fused EfficientNet-Lite0 (``encoders.fused``) computes the checkpoint's function.
+"""The fused EfficientNet-Lite (``encoders.fused``) computes the checkpoint's function.
 
 Why: the robot's path embeds ROI crops with the rewritten classifier (batch norm folded,
 channels-last, 1x1 convs as matrix products, TF "same" padding of stride-2 convs as a zero
@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from runtime_fixtures import conse_fixture, shared_image  # noqa: F401
 
 from craft_e.runtime.encoders.efficientnet import SameConv2d
-from craft_e.runtime.encoders.fused import FusedEfficientNetLite0, same_padding
+from craft_e.runtime.encoders.fused import FusedEfficientNetLite, same_padding
 from craft_e.runtime.encoders.image import FusableImageEncoder, inference_encoder, load_image
 
 TOL = 1e-5
@@ -37,15 +37,17 @@ def test_fused_embeddings_equal_the_reference(conse: Any) -> None:
     np.testing.assert_allclose(conse.class_probabilities(imgs), fast.class_probabilities(imgs), atol=TOL)  # type: ignore[attr-defined]
 
 
-def test_fused_logits_on_random_inputs(conse: Any) -> None:
+@pytest.mark.parametrize("size", [240, 224])
+def test_fused_logits_on_random_inputs(conse: Any, size: int) -> None:
+    """At the default classifier's own size (Lite1: 240) and at another one (paddings fixed per size)."""
     ref = conse.classifier
-    fast = FusedEfficientNetLite0.from_reference(ref)
-    x = torch.rand(3, 3, 224, 224, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    fast = FusedEfficientNetLite.from_reference(ref, size)
+    x = torch.rand(3, 3, size, size, generator=torch.Generator().manual_seed(0)) * 2 - 1
     with torch.inference_mode():
         want, got = ref(x), fast(x)
     assert float((want - got).abs().max()) < 1e-4 * max(1.0, float(want.abs().max()))
     assert float((want.softmax(-1) - got.softmax(-1)).abs().max()) < TOL
-    with pytest.raises(ValueError, match="224x224"):
+    with pytest.raises(ValueError, match=f"{size}x{size}"):
         fast(torch.zeros(1, 3, 200, 200))
 
 

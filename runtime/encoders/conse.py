@@ -1,7 +1,7 @@
 """ConSE image encoder: ImageNet class probabilities mapped into the text embedding space.
 
-No CLIP weights can be had offline, so ``phi_I`` is built from parts that can: EfficientNet-Lite0
-gives ``p(y | x)`` over the 1000 ImageNet classes, and (Norouzi et al., ICLR 2014, "ConSE")
+No CLIP weights can be had offline, so ``phi_I`` is built from parts that can: an EfficientNet-Lite
+classifier (Lite1 by default, Lite0 on request) gives ``p(y | x)`` over the 1000 ImageNet classes, and (Norouzi et al., ICLR 2014, "ConSE")
 
     phi_I(x) = normalize( sum_{t <= k} p(y_t | x) * phi_T(name(y_t)) / sum_{t <= k} p(y_t | x) )
 
@@ -159,7 +159,11 @@ def encode_with_classes(encoder: Any, crops: Sequence[UInt8Image]) -> tuple[Floa
 
 
 class ConSEImageEncoder:
-    """EfficientNet-Lite0 + MiniLM class names -> ``[N, 384]`` image embeddings (ConSE).
+    """EfficientNet-Lite (``classifier``) + MiniLM class names -> ``[N, 384]`` image embeddings (ConSE).
+
+    ``classifier``: ``efficientnet-lite1`` (the default) or ``efficientnet-lite0`` (the encoder
+    of every result before 2026-12-04; ``docs/recognition.md`` compares them). Crops are resized
+    to the classifier's own training resolution (Lite1 240, Lite0 224).
 
     ``threads`` caps torch's intra-op threads during forward passes: on a busy 2-core host one
     thread was measured at ~65 ms per image against 0.2-2.4 s with two contending threads.
@@ -178,13 +182,11 @@ class ConSEImageEncoder:
         threads: int | None = None,
         preprocess: str = "center",
         tta: int = 1,
+        classifier: str | None = None,
     ) -> None:
         import torch
 
-        from .efficientnet import (
-            EFFICIENTNET_LITE0_SHA256,
-            load_efficientnet_lite0,
-        )
+        from .efficientnet import DEFAULT_CLASSIFIER, load_efficientnet, variant
 
         if top_k < 1:
             raise ValueError(f"top_k must be >= 1, got {top_k}")
@@ -197,19 +199,23 @@ class ConSEImageEncoder:
         self.tta = tta
         self.threads = threads  # torch intra-op threads during forward passes (None: torch's default)
         self._torch = torch
-        self.classifier: nn.Module = load_efficientnet_lite0(weights)
+        lite = variant(classifier or DEFAULT_CLASSIFIER)
+        self.size = lite.resolution  # the classifier's input size
+        self.resize = round(lite.resolution * 256 / 224)  # ``center``: short side, as 256 is for 224
+        self.classifier: nn.Module = load_efficientnet(lite, weights)
         self.class_names = imagenet_class_names()
         self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder)  # [1000, d]
-        variant = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
+        suffix = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
         self._fused_twin: ConSEImageEncoder | None = None
-        self.id = (f"conse-k{top_k}{variant}:efficientnet-lite0@{EFFICIENTNET_LITE0_SHA256[:12]}"
+        self.id = (f"conse-k{top_k}{suffix}:{lite.name}@{lite.sha256[:12]}"
                    f"+{MINILM_ID}@{MINILM_SHA256[:12]}")
 
     def class_probabilities(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> npt.NDArray[np.float32]:
         """ImageNet softmax ``[N, 1000]`` for RGB crops of any size.
 
-        ``preprocess`` ``center``: short side to 256, centre 224 (the ImageNet evaluation
-        transform); ``fit``: the whole crop resized to 224 x 224 (ROI crops are already square
+        ``preprocess`` ``center``: short side to 256, centre 224 for Lite0 (the ImageNet
+        evaluation transform; 274 / 240 for Lite1); ``fit``: the whole crop resized to the
+        classifier's size (224 x 224 for Lite0, 240 x 240 for Lite1; ROI crops are already square
         with context, so a centre crop would only cut the object). ``tta`` 2 averages the
         probabilities of the crop and its mirror image (one batch of 2N)."""
         torch = self._torch
@@ -219,12 +225,13 @@ class ConSEImageEncoder:
             torch.set_num_threads(self.threads)
         try:
             for start in range(0, len(crops), max(1, batch_size)):
-                prep = resize_center_crop if self.preprocess == "center" else resize_fit
-                chunk = [prep(c) for c in crops[start : start + batch_size]]
-                x = torch.from_numpy(np.stack(chunk)).permute(0, 3, 1, 2).float()  # [B, 3, 224, 224]
+                part = crops[start : start + batch_size]
+                chunk = ([resize_center_crop(c, self.size, self.resize) for c in part] if self.preprocess == "center"
+                         else [resize_fit(c, self.size) for c in part])
+                x = torch.from_numpy(np.stack(chunk)).permute(0, 3, 1, 2).float()  # [B, 3, S, S]
                 x = x / 127.5 - 1.0  # [-1, 1], the range the weights expect
                 if self.tta == 2:
-                    x = torch.cat([x, x.flip(3)])  # [2B, 3, 224, 224]: + mirror images
+                    x = torch.cat([x, x.flip(3)])  # [2B, 3, S, S]: + mirror images
                 with torch.inference_mode():
                     probs = self.classifier(x).softmax(dim=-1)  # [B or 2B, 1000]
                 if self.tta == 2:
@@ -241,12 +248,12 @@ class ConSEImageEncoder:
         with this encoder's class embeddings. Its ``id`` says so."""
         twin = self._fused_twin
         if twin is None:
-            from .efficientnet import EfficientNetLite0
-            from .fused import FusedEfficientNetLite0
+            from .efficientnet import EfficientNetLite
+            from .fused import FusedEfficientNetLite
 
-            assert isinstance(self.classifier, EfficientNetLite0)
+            assert isinstance(self.classifier, EfficientNetLite)
             twin = copy.copy(self)
-            twin.classifier = FusedEfficientNetLite0.from_reference(self.classifier)
+            twin.classifier = FusedEfficientNetLite.from_reference(self.classifier, self.size)
             twin.id = f"{self.id}+fused"
             twin._fused_twin = twin
             self._fused_twin = twin

@@ -1,9 +1,9 @@
-"""EfficientNet-Lite0 rewritten for inference on CPU: the same logits, faster operations.
+"""EfficientNet-Lite (Lite0, Lite1) rewritten for inference on CPU: the same logits, faster operations.
 
 Why: the robot embeds every ROI crop of a scene (~4.5 crops) before it can ground, and the
 checkpoint's layer layout (conv, then batch norm, then ReLU6, each a pass over memory; TF "same"
 padding as a zero-filled copy) is not what a CPU runs fastest. Each rewrite is exact in real
-arithmetic; in float32 the logits differ from ``EfficientNetLite0``'s by rounding only
+arithmetic; in float32 the logits differ from ``EfficientNetLite``'s by rounding only
 (``tests/test_encoders_fused.py``: < 1e-5 on the ConSE embeddings):
 
 * batch norm (eval mode: a per-channel affine map) folded into the conv before it, ReLU6 in
@@ -14,7 +14,7 @@ arithmetic; in float32 the logits differ from ``EfficientNetLite0``'s by roundin
   symmetric padding ``hi``, reads exactly the same pixels with the same weights, without the
   padded copy of the input.
 
-The evaluation keeps ``EfficientNetLite0`` (its published results are bit-for-bit
+The evaluation keeps ``EfficientNetLite`` (its published results are bit-for-bit
 reproducible); the robot's own path (``sim.choose``) runs this module.
 """
 
@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .efficientnet import EfficientNetLite0, MBConvBlock, SameConv2d
+from .efficientnet import EfficientNetLite, MBConvBlock, SameConv2d
 
 _CL = torch.channels_last
 
@@ -97,11 +97,11 @@ class _FusedBlock(nn.Module):
         return y.add_(x) if self.skip else y
 
 
-class FusedEfficientNetLite0(nn.Module):
-    """``EfficientNetLite0``'s logits ``[B, 1000]`` for ``[B, 3, size, size]`` inputs (the
-    paddings are fixed for one input size, 224 as in ``ConSEImageEncoder``)."""
+class FusedEfficientNetLite(nn.Module):
+    """``EfficientNetLite``'s logits ``[B, 1000]`` for ``[B, 3, size, size]`` inputs (the
+    paddings are fixed for one input size: the classifier's own, as ``ConSEImageEncoder`` passes it)."""
 
-    def __init__(self, ref: EfficientNetLite0, size: int = 224) -> None:
+    def __init__(self, ref: EfficientNetLite, size: int = 224) -> None:
         super().__init__()
         self.size = size
         self.stem = _FusedConv(ref._conv_stem, ref._bn0, True, size)
@@ -116,8 +116,8 @@ class FusedEfficientNetLite0(nn.Module):
         self.fc = ref._fc
 
     @classmethod
-    def from_reference(cls, ref: EfficientNetLite0, size: int = 224) -> FusedEfficientNetLite0:
-        """The fused network of a loaded ``EfficientNetLite0`` in eval mode (its batch-norm
+    def from_reference(cls, ref: EfficientNetLite, size: int = 224) -> FusedEfficientNetLite:
+        """The fused network of a loaded ``EfficientNetLite`` in eval mode (its batch-norm
         statistics are folded); parameters are frozen."""
         with torch.no_grad():
             model = cls(ref, size).eval()
@@ -125,9 +125,9 @@ class FusedEfficientNetLite0(nn.Module):
         return model
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = self.stem(x.contiguous(memory_format=_CL))  # [B, 32, 112, 112]
+        x = self.stem(x.contiguous(memory_format=_CL))  # [B, 32, S/2, S/2]
         for block in self.blocks:
-            x = block(x)  # ... -> [B, 320, 7, 7]
-        x = self.head(x)  # [B, 1280, 7, 7]
+            x = block(x)  # ... -> [B, 320, S/32, S/32]
+        x = self.head(x)  # [B, 1280, S/32, S/32]
         logits: torch.Tensor = self.fc(x.mean(dim=(2, 3)))  # [B, 1000]
         return logits

@@ -20,6 +20,10 @@ Settings (each row changes one thing over the row it builds on; the renders are 
 * ``2x fit + size cue``: the default view, with ``p(o | r)`` also weighed by how well the asset's
   extents, measured from the overhead depth, fit each name's typical size (the bundle's
   ``object_sizes.json``, one recorded answer per name; ``grounding/size_cue.py``).
+
+The rows above run ConSE's first classifier, EfficientNet-Lite0 at 224x224; the ``Lite1`` rows run
+the default since 2026-12-04, EfficientNet-Lite1 at its own 240x240 (``encoders/efficientnet.py``),
+on the same renders.
 """
 
 from __future__ import annotations
@@ -66,7 +70,10 @@ class Setting:
     size_cue: bool = False
     colour_cue: bool = False
     lookalike_cue: bool = False
+    classifier: str = "efficientnet-lite0"
 
+
+_LITE1 = "efficientnet-lite1"
 
 SETTINGS: tuple[Setting, ...] = (
     Setting("baseline", "640x480 render, resize 256 / centre 224 (before issue 10)", "1x"),
@@ -84,6 +91,14 @@ SETTINGS: tuple[Setting, ...] = (
             "fit the classes each name's photos get (object_lookalikes.json)", "2x", "fit", lookalike_cue=True),
     Setting("2x fit + size + look-alike cue", "2x, fit; the size and look-alike cues", "2x", "fit",
             size_cue=True, lookalike_cue=True),
+    Setting("Lite1, 2x fit", "the classifier EfficientNet-Lite1 at its 240x240 (2x, fit)", "2x", "fit",
+            classifier=_LITE1),
+    Setting("Lite1, 2x fit + size cue", "Lite1, 2x, fit, size cue: the default since 2026-12-04", "2x", "fit",
+            size_cue=True, classifier=_LITE1),
+    Setting("Lite1, 2x fit + size + colour cue", "Lite1, 2x, fit; the size and colour cues", "2x", "fit",
+            size_cue=True, colour_cue=True, classifier=_LITE1),
+    Setting("Lite1, 2x fit + size + look-alike cue", "Lite1, 2x, fit; the size and look-alike cues", "2x", "fit",
+            size_cue=True, lookalike_cue=True, classifier=_LITE1),
 )
 
 
@@ -209,17 +224,17 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     names = [v.name for v in rendered]
-    encoders: dict[tuple[str, int], ConSEImageEncoder] = {}
+    encoders: dict[tuple[str, str, int], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
     per_asset: dict[str, dict[str, int]] = {}
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         for s in SETTINGS:
-            enc = encoders.get((s.preprocess, s.tta))
+            enc = encoders.get((s.classifier, s.preprocess, s.tta))
             if enc is None:
-                enc = encoders[(s.preprocess, s.tta)] = ConSEImageEncoder(
-                    threads=threads, preprocess=s.preprocess, tta=s.tta)
+                enc = encoders[(s.classifier, s.preprocess, s.tta)] = ConSEImageEncoder(
+                    threads=threads, preprocess=s.preprocess, tta=s.tta, classifier=s.classifier)
             start = time.perf_counter()
             classes: list[ClassTop | None] | None = None  # the fused view has no single classifier output
             if s.source == "fused":
