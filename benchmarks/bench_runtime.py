@@ -4,7 +4,7 @@ Promises measured here (2-core CPU, no GPU):
 
 * ``Grounder.ground`` for 10 ROIs with precomputed image embeddings and a 400-object vocabulary:
   median < 1 ms (everything bundle-dependent is precomputed in the constructor);
-* image encoder (ConSE: EfficientNet-Lite0 + class-name embeddings) per ROI crop and per batch
+* image encoder (ConSE: EfficientNet-Lite1 (Lite0 before 2026-12-04) + class-name embeddings) per ROI crop and per batch
   of 10 crops;
 * ``load_bundle`` (verify every file's sha256 + the manifest hash, parse, load arrays).
 

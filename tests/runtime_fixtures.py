@@ -107,7 +107,7 @@ def runtime_kbs_fixture(tmp_path_factory: pytest.TempPathFactory) -> RuntimeKBs:
 
 @pytest.fixture(scope="session", name="conse")
 def conse_fixture() -> Any:
-    """The default image encoder (EfficientNet-Lite0 + MiniLM class names), loaded once."""
+    """The default image encoder (EfficientNet-Lite1 + MiniLM class names), loaded once."""
     from craft_e.runtime.encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=1)  # one thread: stable timings on busy CI hosts
