@@ -162,6 +162,18 @@ def test_cli_writes_the_paper_table_as_json(first_run: dict[str, Any]) -> None:
     assert first_run["config"]["pipeline"]["grasp_fallback"] is True
 
 
+def test_classifier_option_reproduces_the_lite0_encoder(run_dir: Path, first_run: dict[str, Any]) -> None:
+    """``--classifier efficientnet-lite0`` runs the encoder of every result before 2026-12-04 (its id
+    in the report says so); the default is Lite1. The same scene either way: the episode's target,
+    layout and distractors do not depend on the encoder."""
+    assert first_run["config"]["image_encoder"].startswith("conse-k10-fit:efficientnet-lite1@")
+    lite0 = _run_cli(run_dir, "lite0", "--methods", "CRAFT-E", "--classifier", "efficientnet-lite0")
+    assert lite0["config"]["image_encoder"] == "conse-k10-fit:efficientnet-lite0@579344248a93+minilm-l6-v2@53aa51172d14"
+    check_report(lite0)
+    ep0, ep1 = lite0["episodes"][0], first_run["episodes"][0]
+    assert (ep0["id"], ep0["distractors"]) == (ep1["id"], ep1["distractors"])
+
+
 def test_the_report_checker_catches_inconsistent_reports(first_run: dict[str, Any]) -> None:
     """``check_report`` is what the slow full run relies on: it must reject broken reports."""
     import copy

@@ -185,6 +185,17 @@ def test_bad_labels_fail_before_the_progress_bar(tmp_path: Path, command: str) -
     assert "episodes" not in result.output
 
 
+@pytest.mark.parametrize("command", ["sim", "static"])
+def test_unknown_classifier_is_refused_before_any_scene(tmp_path: Path, command: str) -> None:
+    labels = tmp_path / "labels.csv"
+    labels.write_text("cut,knife\n", encoding="utf-8")
+    result = runner.invoke(app, ["eval", command, "--labels", str(labels), "--classifier", "efficientnet-lite9"],
+                           env={"COLUMNS": "300"})
+    assert result.exit_code == 2, result.output
+    assert "--classifier 'efficientnet-lite9': choose one of efficientnet-lite0, efficientnet-lite1" in result.output
+    assert "episodes" not in result.output and "scenes" not in result.output
+
+
 def test_non_utf8_labels_name_the_file(tmp_path: Path) -> None:
     labels = tmp_path / "labels.csv"
     labels.write_bytes(b"cut,knife\n\xff\xfe,bad\n")

@@ -30,6 +30,17 @@ TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.
 MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
 SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
 JobsOpt = Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical to --jobs 1).")]
+ClassifierOpt = Annotated[str | None, typer.Option(
+    help="ImageNet classifier of the ConSE image encoder: efficientnet-lite1 (default) | efficientnet-lite0 "
+         "(reproduces runs from before 2026-12-04).", show_default=False)]
+
+
+def check_classifier(name: str | None) -> None:
+    """Refuse an unknown ``--classifier`` before anything is rendered (exit 2, naming the choices)."""
+    from ..encoders.efficientnet import VARIANTS
+
+    if name is not None and name not in VARIANTS:
+        fail(f"--classifier {name!r}: choose one of {', '.join(VARIANTS)}")
 # the hand and the pick, shared by `craft eval sim` and `craft sim demo`
 GripperOpt = Annotated[str, typer.Option(help="Hand on the CR3: panda (Franka hand, default) | robotiq_2f85.")]
 WristLookOpt = Annotated[bool, typer.Option(help="Re-centre each grasp from one wrist depth frame at "

@@ -45,6 +45,7 @@ def eval_sim(
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
+    classifier: ep.ClassifierOpt = None,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -69,11 +70,13 @@ def eval_sim(
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels)
+    ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
                                   colour_cue=colour_cue, lookalikes=lookalikes)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,
-                                 env_config=env_config, retry=RetryConfig(retries=retries)),
+                                 env_config=env_config, retry=RetryConfig(retries=retries),
+                                 classifier=classifier),
         "episodes", "episodes", json_out, markdown,
         (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, CueUnavailableError))

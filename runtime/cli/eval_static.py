@@ -35,6 +35,7 @@ def eval_static(
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
+    classifier: ep.ClassifierOpt = None,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from ...paths import SIM_DEV_LABELS
@@ -50,12 +51,13 @@ def eval_static(
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels_path)
+    ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
                                   colour_cue=colour_cue, lookalikes=lookalikes)
     ep.run_with_progress(
         lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
                                     noise=levels, threads=threads, settings=settings, progress=bar,
-                                    jobs=jobs),
+                                    jobs=jobs, classifier=classifier),
         "episodes", "scenes", json_out, markdown,
         (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, ValueError, RuntimeError))

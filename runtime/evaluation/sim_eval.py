@@ -293,12 +293,14 @@ def make_episode_specs(
 # encoder
 
 
-def default_encoder(threads: int = 1) -> ImageEncoder:
+def default_encoder(threads: int = 1, classifier: str | None = None) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
-    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md)."""
+    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md).
+    ``classifier``: its ImageNet classifier (None: the default, EfficientNet-Lite1;
+    ``efficientnet-lite0`` reproduces runs from before 2026-12-04)."""
     from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, preprocess="fit")
+    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -483,11 +485,12 @@ ProgressFn = Callable[[int, int, dict[str, Any]], None]
 
 def _worker_context(
     runnable_specs: Sequence[MethodSpec], threads: int, settings: GroundingSettings,
+    classifier: str | None = None,
 ) -> tuple[dict[str, Grounder], ImageEncoder]:
     """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
     from ..sim.pipeline import sim_vocabulary
 
-    enc = default_encoder(threads)
+    enc = default_encoder(threads, classifier)
     runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
     return build_grounders(runnable, settings, sim_vocabulary()), enc
 
@@ -520,6 +523,7 @@ def evaluate_sim(
     progress: ProgressFn | None = None,
     jobs: int = 1,
     retry: RetryConfig | None = None,
+    classifier: str | None = None,
 ) -> SimReport:
     """Run every episode once and every method on it; see the module docstring.
 
@@ -527,6 +531,7 @@ def evaluate_sim(
     ``progress(done, total, record)`` is called after each episode. ``jobs`` > 1 runs episodes
     in that many worker processes (``evaluation.parallel``): the report is byte-identical to
     ``jobs=1``. Workers build the default image encoder, so ``encoder`` must then be None.
+    ``classifier`` chooses that encoder's ImageNet classifier (``default_encoder``).
     ``retry`` (``sim.retry.RetryConfig``) adds a retry policy's column beside the single-attempt
     metrics; without it (or with 0 retries) the report is what it was.
     """
@@ -545,13 +550,13 @@ def evaluate_sim(
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
     settings = settings or GroundingSettings()
-    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads)
+    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier)
     method_specs = list(methods) if methods is not None else select_methods()
     runnable, skipped = load_methods(method_specs, enc.text_encoder_id)
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:
-        build = partial(_worker_context, [m for m, _ in runnable], cfg.torch_threads, settings)
+        build = partial(_worker_context, [m for m, _ in runnable], cfg.torch_threads, settings, classifier)
         for record in ordered_map(partial(_run_one, cfg, env_cfg, retry), specs, jobs=jobs, build=build,
                                   context=(grounders, enc)):
             records.append(record)

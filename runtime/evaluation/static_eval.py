@@ -444,11 +444,13 @@ def evaluate_static(
     settings: GroundingSettings | None = None,
     progress: ProgressFn | None = None,
     jobs: int = 1,
+    classifier: str | None = None,
 ) -> StaticReport:
     """Render every scene once, then score every method in every setting and noise level.
 
     ``jobs`` > 1 renders and scores scenes in that many worker processes, with a report
-    byte-identical to ``jobs=1`` (``evaluation.parallel``); ``encoder`` must then be None."""
+    byte-identical to ``jobs=1`` (``evaluation.parallel``); ``encoder`` must then be None.
+    ``classifier`` chooses the default encoder's ImageNet classifier (``sim_eval.default_encoder``)."""
     from functools import partial
 
     from .parallel import ordered_map
@@ -465,7 +467,7 @@ def evaluate_static(
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
     settings = settings or GroundingSettings()
-    enc = encoder if encoder is not None else default_encoder(threads)
+    enc = encoder if encoder is not None else default_encoder(threads, classifier)
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
                                      enc.text_encoder_id)
     from ..sim.pipeline import sim_vocabulary
@@ -476,7 +478,7 @@ def evaluate_static(
     if jobs > 1 and encoder is not None:
         raise ValueError("jobs > 1 builds the default image encoder in every worker; pass encoder=None")
     run = partial(_static_record, backends, env_cfg, gt_config, threads, levels, setting_names, seed)
-    build = partial(_worker_context, [m for m, _ in runnable], threads, settings)
+    build = partial(_worker_context, [m for m, _ in runnable], threads, settings, classifier)
     for record in ordered_map(run, specs if grounders else [], jobs=jobs, build=build, context=(grounders, enc)):
         episodes.append(record)
         if progress is not None:
