@@ -1,7 +1,8 @@
 """ConSE image encoder: ImageNet class probabilities mapped into the text embedding space.
 
 No CLIP weights can be had offline, so ``phi_I`` is built from parts that can: an EfficientNet-Lite
-classifier (Lite1 by default, Lite0 on request) gives ``p(y | x)`` over the 1000 ImageNet classes, and (Norouzi et al., ICLR 2014, "ConSE")
+classifier (Lite1 by default, Lite0 on request) gives ``p(y | x)`` over the 1000 ImageNet classes,
+and (Norouzi et al., ICLR 2014, "ConSE")
 
     phi_I(x) = normalize( sum_{t <= k} p(y_t | x) * phi_T(name(y_t)) / sum_{t <= k} p(y_t | x) )
 
