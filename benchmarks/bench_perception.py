@@ -90,6 +90,20 @@ from craft_e.runtime.sim.pipeline import (
 GRASP_TOL = 1e-4  # the robot's networks equal the evaluation's to float rounding (~1e-6)
 
 
+def _cpu_model() -> str:
+    """The host CPU's model name and whether it has AMX/AVX-512 (``/proc/cpuinfo``; "" where it
+    cannot be read): hosts differ several-fold in the networks' speed and less in numpy's, so
+    the ratio depends on the host and the JSON records which."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return platform.processor() or platform.machine()
+    model = next((line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("model name")), "")
+    flags = next((line.split(":", 1)[1].split() for line in text.splitlines() if line.startswith("flags")), [])
+    extras = [name for name, flag in (("AVX-512", "avx512f"), ("AMX", "amx_tile")) if flag in flags]
+    return f"{model} ({', '.join(extras)})" if extras else model
+
+
 def _rect_gap(a: object, b: object) -> float:
     """How far two chosen grasps differ: 0 for the same rectangle, inf for another centre pixel
     (another peak) or no grasp on one side, else the largest difference of angle (rad), width,
@@ -203,7 +217,7 @@ def main() -> None:
     robot = sum(per_stage.values())
     floor_s = sum(floor.values()) / n
     print(f"{len(specs)} scenes x {args.repeats}, {rois_total / n:.1f} ROIs/scene, torch threads {args.threads}, "
-          f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), "
+          f"{os.cpu_count()} CPUs ({_cpu_model()}), "
           f"load average {load[0]:.1f} before / {load_after[0]:.1f} after")
     print("| stage | s / scene | share |\n|---|---:|---:|")
     for k, v in per_stage.items():
@@ -225,7 +239,8 @@ def main() -> None:
             "repeats": args.repeats, "order": "alternating (robot first, then floor first)",
             "rois_per_scene": rois_total / n, "torch_threads": args.threads,
             "grasp_fallback": cfg.uses_fallback,
-            "torch_version": torch.__version__, "cpus": os.cpu_count(),
+            "torch_version": torch.__version__, "cpus": os.cpu_count(), "cpu_model": _cpu_model(),
+            "image_encoder": fast_enc.id,
             "load_average": [round(load[0], 2), round(load_after[0], 2)],
             "ik_plans_per_scene": plans / n, "choice_equals_eager": f"{agree}/{n}",
             "chosen_grasp_max_difference": worst_gap,
