@@ -1,10 +1,12 @@
-"""Dev study: the weights of E_aff (beta) and E_align (gamma) in the paper's energy, on our
-development labels only.
+"""Dev study: the weights of E_aff (beta) and E_align (gamma) in the paper's energy, and E_aff's
+per-verb scaling, on our development labels only.
 
 The paper fixes alpha = beta = gamma = 1 (Sec. IV) for its sum-tanh E_aff, whose affording objects
-sit at -1. Our default E_aff (the normalized product, issue 9) rarely reaches -1, so this script
-measures the weights on *every* dev protocol that has images, per verb, with leave-one-verb-out
-selection:
+sit at -1. Our default E_aff (the normalized product, issue 9) rarely reaches -1, and how far below
+it a verb's best object stays depends on the verb, so this script measures the weights on *every*
+dev protocol that has images, per verb, with leave-one-verb-out selection, for each bundle both
+as is and with ``aff_norm`` "verb-best" (each verb's best bundle object scaled to -1; ``--aff-norm``
+picks which):
 
 * ``imagenet``: ``craft eval imagenet``'s episodes on ``tests/fixtures/imagenet_dev_labels.json``
   (6 verbs, single-affordance top-1, alpha = 0 as that protocol fixes);
@@ -15,9 +17,10 @@ selection:
 
 Leave-one-verb-out: each unit — an ImageNet verb or a full-pipeline verb of one labels file — in
 turn is held out, the weights (beta, gamma) are chosen by the mean score of the other units (ties
-go to the paper's (1, 1), then to the larger weights), and the held-out unit is scored with them.
-The withheld benchmark labels are never read. The default grid is the one the shipped default
-(beta 3, gamma 0.5, ``grounding/settings.py``) was chosen from.
+go to the paper's (1, 1), then to the larger weights), and the held-out unit is scored with them;
+each (bundle, scaling) row set has its own, so their held-out means compare the scalings as
+procedures. The withheld benchmark labels are never read. The default grid is the one the
+shipped default (beta 8, gamma 1, scaled per verb; ``grounding/settings.py``) was chosen from.
 
 Run: ``.venv/bin/python benchmarks/bench_energy_weights.py [--jobs 2] --json OUT --markdown OUT``
 (~15 min on 2 cores; ``--no-static`` runs the ImageNet part alone in ~30 s).
@@ -34,6 +37,7 @@ from typing import Any
 from craft_e.arguments import number_list, output_file
 from craft_e.paths import KB_DIR, SIM_DEV_LABELS, SIM_VAL_LABELS
 from craft_e.runtime.evaluation.methods import MethodSpec
+from craft_e.runtime.grounding.settings import AFF_NORMS, AffNorm
 
 IMAGENET_DEV = Path("tests/fixtures/imagenet_dev_labels.json")
 Weights = tuple[float, float]  # (beta, gamma)
@@ -43,6 +47,17 @@ STATIC_SETTINGS = {"full": "grconvnet/predicted", "gt": "gt/gt"}  # column -> st
 
 def _row(kb: str, weights: Weights) -> str:
     return f"{kb} @ beta {weights[0]:g}, gamma {weights[1]:g}"
+
+
+def _variant(kb: str, norm: AffNorm) -> str:
+    """The row-set name of a bundle under an E_aff scaling (the bundle alone when unscaled)."""
+    return kb if norm == "none" else f"{kb} + {norm}"
+
+
+def _norm_of(variant: str) -> AffNorm:
+    """The E_aff scaling a row-set name (``_variant``) stands for."""
+    _, _, named = variant.partition(" + ")
+    return next((n for n in AFF_NORMS if n == named), "none")
 
 
 def _key(weights: Weights) -> str:
@@ -115,11 +130,14 @@ def _bundle_name(name: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--betas", type=number_list, default="1,1.5,2,3")
+    parser.add_argument("--betas", type=number_list, default="1,1.5,2,3,4,6,8,12,16")
     parser.add_argument("--gammas", type=number_list, default="0.5,1")
     parser.add_argument("--kb", action="append", type=_bundle_name, default=None,
                         help="bundle names under artifacts/kb "
                         "(default: craft-e-default, direct-llm)")
+    parser.add_argument("--aff-norm", action="append", choices=AFF_NORMS, default=None,
+                        help="E_aff scaling, repeatable: each is a row set of every --kb with its own "
+                        "leave-one-verb-out (default: none and verb-best)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--no-static", action="store_true")
@@ -134,8 +152,12 @@ def main() -> None:
         if not labels.is_file():
             parser.error(f"--static-labels {labels}: no such labels file")
     grid: list[Weights] = [(b, g) for b in args.betas for g in args.gammas]
-    kbs = args.kb or ["craft-e-default", "direct-llm"]
-    specs = [MethodSpec(_row(kb, w), f"{kb}, beta {w[0]:g}, gamma {w[1]:g}", KB_DIR / kb, beta=w[0], gamma=w[1])
+    norms: list[AffNorm] = args.aff_norm or list(AFF_NORMS)
+    # a row set per KB and E_aff scaling ("craft-e-default", "craft-e-default + verb-best"), each
+    # with its own leave-one-verb-out: the held-out means compare the scalings as procedures
+    kbs = [_variant(kb, norm) for kb in (args.kb or ["craft-e-default", "direct-llm"]) for norm in norms]
+    specs = [MethodSpec(_row(kb, w), f"{kb}, beta {w[0]:g}, gamma {w[1]:g}", KB_DIR / kb.split(" + ")[0],
+                        beta=w[0], gamma=w[1], aff_norm=_norm_of(kb))
              for kb in kbs for w in grid]
 
     columns: dict[str, dict[str, dict[str, float]]] = {"imagenet": imagenet_scores(specs, args.threads)}

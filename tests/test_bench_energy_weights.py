@@ -57,3 +57,17 @@ def test_a_missing_static_labels_file_fails_before_any_work(monkeypatch: pytest.
         _script().main()
     assert stopped.value.code == 2
     assert "--static-labels no-such-labels.csv: no such labels file" in capsys.readouterr().err
+
+
+def test_each_e_aff_scaling_is_its_own_row_set(monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    script = _script()
+    assert script._variant("craft-e-default", "none") == "craft-e-default"  # unscaled rows keep their names
+    assert script._variant("craft-e-default", "verb-best") == "craft-e-default + verb-best"
+    assert script._norm_of("craft-e-default + verb-best") == "verb-best"
+    assert script._norm_of("craft-e-default") == "none"
+    monkeypatch.setattr("sys.argv", ["bench_energy_weights.py", "--aff-norm", "max"])
+    with pytest.raises(SystemExit) as stopped:
+        script.main()
+    assert stopped.value.code == 2
+    assert "invalid choice: 'max'" in capsys.readouterr().err

@@ -52,6 +52,7 @@ def test_ground_with_rois_file_and_grasp_scores(runtime_kbs: RuntimeKBs, tmp_pat
     (["--verb", "cut", "--box", "0,0,50,50", "--alpha", "nan"], "--alpha nan"),
     (["--verb", "cut", "--box", "0,0,50,50", "--gamma", "-1"], "--gamma -1.0"),
     (["--verb", "cut", "--box", "0,0,50,50", "--grasp", "foo"], "--grasp 'foo': use auto or one of"),
+    (["--verb", "cut", "--box", "0,0,50,50", "--aff-norm", "max"], "--aff-norm 'max': use one of none, verb-best"),
     (["--verb", "cut", "--box", "0,0,50,50", "--grasp", "ggcnn"], "pass --depth FILE.npy too"),
 ])
 def test_ground_usage_errors(runtime_kbs: RuntimeKBs, args: list[str], message: str) -> None:
@@ -105,7 +106,7 @@ def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("flags", "weights"), [
-    ([], {"CRAFT-E": (3.0, 0.5), "alignment-only": (0.0, 0.5), "affordance-only": (3.0, 0.0)}),
+    ([], {"CRAFT-E": (8.0, 1.0), "alignment-only": (0.0, 1.0), "affordance-only": (8.0, 0.0)}),
     (["--beta", "1", "--gamma", "1"], {"CRAFT-E": (1.0, 1.0), "alignment-only": (0.0, 1.0), "affordance-only": (1.0, 0.0)}),
 ])
 def test_eval_weights_reach_every_method(runtime_kbs: RuntimeKBs, tmp_path: Path, flags: list[str],

@@ -31,14 +31,16 @@ def test_energies_of_one_roi_by_hand(runtime_kbs: RuntimeKBs) -> None:
     objs = kb.embeddings["object"] / np.linalg.norm(kb.embeddings["object"], axis=1, keepdims=True)
     cos = objs @ (e / np.linalg.norm(e))
     p = np.exp(cos / 0.07) / np.exp(cos / 0.07).sum()
-    e_aff = float(p @ kb.energy[kb.verb_index["cut"]])
+    row = kb.energy[kb.verb_index["cut"]]
+    # the default aff_norm "verb-best": the verb's affordant values divided by its best object's
+    e_aff = float(p @ np.where(row < 0, row / -row.min(), row))
     q = kb.embeddings["verb_query"][kb.verb_index["cut"]]
     e_align = math.tanh(-float(q @ e / np.linalg.norm(q) / np.linalg.norm(e)))
     assert r.e_grasp == pytest.approx(-math.log(0.8), abs=1e-6)
     assert r.e_aff == pytest.approx(e_aff, abs=1e-5)
     assert r.e_align == pytest.approx(e_align, abs=1e-5)
-    # the default weights (alpha 1, beta 3, gamma 0.5: grounding/settings.py)
-    assert r.total == pytest.approx(1.0 * r.e_grasp + 3.0 * r.e_aff + 0.5 * r.e_align, abs=1e-5)
+    # the default weights (alpha 1, beta 8, gamma 1: grounding/settings.py)
+    assert r.total == pytest.approx(1.0 * r.e_grasp + 8.0 * r.e_aff + 1.0 * r.e_align, abs=1e-5)
     assert r.grasp_index == 1 and r.hypotheses[0].name == "hatchet"
     assert {p.prop for p in r.paths} >= {"sharp edge", "has a blade"}
     assert all(p.provenance for p in r.paths)

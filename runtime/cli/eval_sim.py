@@ -8,7 +8,15 @@ from typing import Annotated
 import typer
 
 from . import episodes as ep
-from .common import AffModeOpt, BetaOpt, EnergyFormOpt, GammaOpt, fail, grounding_settings
+from .common import (
+    AffModeOpt,
+    AffNormOpt,
+    BetaOpt,
+    EnergyFormOpt,
+    GammaOpt,
+    fail,
+    grounding_settings,
+)
 
 
 def eval_sim(
@@ -29,6 +37,7 @@ def eval_sim(
     threads: ep.SceneThreadsOpt = 1,
     energy_form: EnergyFormOpt = None,
     aff_mode: AffModeOpt = "expected",
+    aff_norm: AffNormOpt = None,
     beta: BetaOpt = None,
     gamma: GammaOpt = None,
     jobs: ep.JobsOpt = 1,
@@ -71,7 +80,7 @@ def eval_sim(
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels)
     ep.check_classifier(classifier)
-    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, size_cue=size_cue,
+    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
                                   colour_cue=colour_cue, lookalikes=lookalikes)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,

@@ -17,6 +17,7 @@ import typer
 from ..grounding.settings import DEFAULT_ALPHA, DEFAULT_BETA, DEFAULT_GAMMA
 from .common import (
     AffModeOpt,
+    AffNormOpt,
     EnergyFormOpt,
     TemperatureOpt,
     checked_output_file,
@@ -97,6 +98,7 @@ def ground(
     gamma: Annotated[float, typer.Option(help="Weight of E_align (the paper: 1; docs/energy_weights.md).")] = DEFAULT_GAMMA,
     temperature: TemperatureOpt = None,
     aff_mode: AffModeOpt = "expected",
+    aff_norm: AffNormOpt = None,
     energy_form: EnergyFormOpt = None,
     vocab: Annotated[Path | None, typer.Option(help="Scene object vocabulary file (one per line; default: the KB's objects).")] = None,
     open_vocab: Annotated[bool, typer.Option(help="Accept verbs the KB lacks and free requests (\"dig a hole\"): mapped to properties of similar verbs and properties, or abstained on.")] = False,
@@ -125,7 +127,7 @@ def ground(
         fail("give the ROIs either as --box x,y,w,h (repeatable) or as --rois FILE")
     vocabulary = read_names(vocab, "vocabulary") if vocab is not None else None
     settings = grounding_settings(alpha=alpha, beta=beta, gamma=gamma, temperature=temperature,
-                                  aff_mode=aff_mode, energy_form=energy_form, open_vocab=open_vocab,
+                                  aff_mode=aff_mode, aff_norm=aff_norm, energy_form=energy_form, open_vocab=open_vocab,
                                   vocabulary=vocabulary, lookalikes=lookalikes)
     try:
         specs = [BoxSpec(parse_box(b)) for b in box] if box else read_rois_file(rois) if rois else []

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...paths import KB_DIR
-from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, GroundingSettings
+from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, AffNorm, GroundingSettings
 from .common import SkippedMethod
 
 if TYPE_CHECKING:
@@ -34,6 +34,8 @@ class MethodSpec:
     bundle: Path
     beta: float = DEFAULT_BETA
     gamma: float = DEFAULT_GAMMA
+    #: E_aff scaling of this row (``GroundingSettings.aff_norm``); None: the run's setting
+    aff_norm: AffNorm | None = None
 
 
 def energy_weights(beta: float | None = None, gamma: float | None = None) -> tuple[float, float]:
@@ -108,6 +110,8 @@ def method_settings(spec: MethodSpec, settings: GroundingSettings, vocabulary: S
                                  "vocabulary": tuple(vocabulary), "open_vocab": True}
     if alpha is not None:
         update["alpha"] = alpha
+    if spec.aff_norm is not None:
+        update["aff_norm"] = spec.aff_norm
     return settings.model_copy(update=update)
 
 

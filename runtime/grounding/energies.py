@@ -151,6 +151,29 @@ def energy_from_property_columns(
     return out
 
 
+def verb_best_divisor(energy: npt.NDArray[Any]) -> FloatArray:
+    """``[V, 1]`` divisors that put each row's most negative E_aff at -1 (``aff_norm`` "verb-best").
+
+    ``energy [V, O]`` is the bundle's E_aff over *its own* objects, so a verb's scale is a fact of
+    the KB, the same whatever scene vocabulary is grounded. A row with no affordant object (no
+    negative value) keeps divisor 1: nothing to scale.
+    """
+    best = -np.min(np.asarray(energy, dtype=np.float64), axis=1, keepdims=True)  # [V, 1]
+    out: FloatArray = np.where(best > 1e-9, best, 1.0).astype(np.float32)
+    return out
+
+
+def scale_negative(energy: npt.NDArray[Any], divisor: FloatArray) -> FloatArray:
+    """``energy [V, N]`` with its negative (affordant) entries divided by ``divisor [V, 1]``.
+
+    Positive entries are the forbidden value (``FORBIDDEN_ENERGY``, "never pick X for V") and
+    stay as they are: scaling them would push them past the worst value a bundle can hold.
+    """
+    e = np.asarray(energy, dtype=np.float32)
+    out: FloatArray = np.where(e < 0, e / divisor, e).astype(np.float32)
+    return out
+
+
 def grasp_energy(scores: npt.NDArray[np.floating] | list[float]) -> float:
     """E_grasp = -log(max_j s_ij), scores clipped to [1e-6, 1]; no grasp -> +inf (excluded)."""
     arr = np.asarray(scores, dtype=np.float64)

@@ -48,6 +48,8 @@ from .energies import (
     object_hypotheses,
     property_specificity,
     required_matrix_from_graph,
+    scale_negative,
+    verb_best_divisor,
     weight_matrices_from_graph,
 )
 from .lookalike_cue import (
@@ -393,6 +395,10 @@ class Grounder:
                 "--lookalikes", "look-alike classes", names, bundle.lookalikes, "object_lookalike",
                 "the look-alike cue"))
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
+        # [V, 1] per-verb divisor of aff_norm "verb-best" (1: unscaled), from the bundle's own objects
+        self._verb_divisor = verb_best_divisor(full) if self.settings.aff_norm == "verb-best" else None
+        if self._verb_divisor is not None:
+            self._eaff = scale_negative(self._eaff, self._verb_divisor)
 
         self._forbidden: dict[str, frozenset[str]] = {}
         for v, o in bundle.graph.forbidden_pairs():
@@ -421,6 +427,7 @@ class Grounder:
         self._prop_index = {p: i for i, p in enumerate(self.properties)}
         self._vocab_index = {n: i for i, n in enumerate(names)}
         weight, link = linked_weights(w_po, tau)  # [P, O_bundle]
+        self._bundle_w, self._bundle_l = weight, link  # a request's E_aff over the bundle (aff_norm)
         self._col_w = np.where(known[None, :], weight[:, idx], 0.0)  # [P, O]
         self._col_l = np.where(known[None, :], link[:, idx], 0.0)
         self.inferred: dict[str, ObjectInference] = {}
@@ -502,6 +509,11 @@ class Grounder:
             row = energy_from_property_columns(
                 mapping.weights[None, :], self._col_w, self._col_l, specificity=self._spec,
                 form=self.energy_form, required=mapping.required[None, :])[0]
+            if self.settings.aff_norm == "verb-best":  # scaled like a KB verb: by its best bundle object
+                over_bundle = energy_from_property_columns(
+                    mapping.weights[None, :], self._bundle_w, self._bundle_l, specificity=self._spec,
+                    form=self.energy_form, required=mapping.required[None, :])  # [1, O_bundle]
+                row = scale_negative(row[None, :], verb_best_divisor(over_bundle))[0]
         nearest = [(v, w) for v, w, _ in mapping.verbs]
         return _VerbPlan(row, emb[1], None, True, nearest, frozenset(), mapping)
 

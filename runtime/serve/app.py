@@ -101,8 +101,9 @@ _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class GroundOptions(BaseModel):
-    """Per-request settings; anything left out uses the server's (by default alpha = 1, beta = 3,
-    gamma = 0.5, ``grounding/settings.py``, and the bundle's energy form)."""
+    """Per-request settings; anything left out uses the server's (by default alpha = 1, beta = 8,
+    gamma = 1 with each verb's E_aff scaled by its best object, ``grounding/settings.py``, and the
+    bundle's energy form). The scaling is the server's, not a per-request option."""
 
     model_config = _STRICT
 
