@@ -51,6 +51,9 @@ def test_grounder_scales_each_verb_by_its_best_bundle_object(runtime_kbs: Runtim
     for i in r0:
         assert r1[i].e_aff == pytest.approx(r0[i].e_aff / best, abs=1e-6)
         assert (r1[i].e_grasp, r1[i].e_align) == pytest.approx((r0[i].e_grasp, r0[i].e_align))
+    # the terminal report says which scale its E_aff column is on
+    assert "scaled per verb" in scaled.ground("cut", rois).render()
+    assert "scaled per verb" not in plain.ground("cut", rois).render()
     assert scaled.settings.energy_dict()["aff_norm"] == "verb-best"
     assert "aff_norm" not in plain.settings.energy_dict()  # off: results stored before the option read the same
 

@@ -198,6 +198,7 @@ class Grounding:
         st = self.settings
         lines = [f"verb {self.verb!r} with KB {self.kb}  (alpha={st.alpha:g} beta={st.beta:g} "
                  f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode}"
+                 f"{', scaled per verb' if st.aff_norm == 'verb-best' else ''}"
                  f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''}"
                  f"{', look-alike cue' if self.lookalike_cue_used else ''})"]
         if self.request is not None:
