@@ -79,3 +79,13 @@ def test_settings_and_method_specs_carry_the_option() -> None:
     spec = MethodSpec("x", "", Path("kb"), aff_norm="verb-best")
     assert method_settings(spec, base, ["cup"]).aff_norm == "verb-best"
     assert method_settings(MethodSpec("y", "", Path("kb")), base, ["cup"]).aff_norm == "none"  # the run's
+
+
+def test_a_free_request_is_scaled_by_its_own_best_bundle_object(runtime_kbs: RuntimeKBs) -> None:
+    kb = load_bundle(runtime_kbs.kb)
+    options = {"open_vocab": True}
+    plain = Grounder(kb, GroundingSettings(aff_norm="none", **options), request_min_confidence=0.0)
+    scaled = Grounder(kb, GroundingSettings(aff_norm="verb-best", **options), request_min_confidence=0.0)
+    row0, row1 = plain._plan("chop firewood").row, scaled._plan("chop firewood").row  # over the KB's objects
+    assert row0.min() < 0 and row1.min() == pytest.approx(-1.0)
+    assert row1 == pytest.approx(np.where(row0 < 0, row0 / -row0.min(), row0), abs=1e-6)
