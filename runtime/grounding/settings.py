@@ -32,14 +32,14 @@ DEFAULT_TEMPERATURE = 0.1
 #: The energy weights (paper eq. 1) and E_aff's scaling. The paper sets alpha = beta = gamma = 1
 #: for its sum-tanh E_aff, whose affording objects saturate at -1. Our KB's E_aff (the normalized
 #: product, issue 9) rarely reaches -1, and how far below it a verb's best object stays depends on
-#: the verb: -0.9 for *hammer* or *pour*, -0.5 to -0.6 for verbs whose properties are alternatives
-#: (*play*, *serve*, *carry*). So each verb's row is scaled by its best object in the bundle
-#: (``aff_norm`` "verb-best"), and the weights were chosen with it: leave-one-verb-out over the
-#: dev units (ImageNet dev, sim-dev and sim-val rendered scenes; 41 verbs) from beta in
-#: {1, 1.5, 2, 3, 4, 6, 8, 12, 16} x gamma in {0.5, 1}, with and without the scaling, picks
-#: (8, 1) with it in 39 of 41 folds (held-out mean 57.3; unscaled, the best procedure scores
-#: 56.6 and its choice sits at the grid's edge): docs/energy_weights.md. Until 2026-12-04 the
-#: default was beta 3, gamma 0.5, unscaled.
+#: the verb: -0.98 for *hammer* or *pour*, -0.6 to -0.7 for verbs whose properties are
+#: alternatives (*play*, *serve*, *carry*; benchmarks/verb_best_energy.py). So each verb's row is
+#: scaled by its best object in the bundle (``aff_norm`` "verb-best"), and the weights were
+#: chosen with it: leave-one-verb-out over the dev units (ImageNet dev, sim-dev and sim-val
+#: rendered scenes; 41 verbs) from beta in {1, 1.5, 2, 3, 4, 6, 8, 12, 16} x gamma in {0.5, 1},
+#: with and without the scaling, picks (8, 1) with it in 39 of 41 folds (held-out mean 57.3;
+#: unscaled, the best procedure scores 56.6 and its choice sits at the grid's edge):
+#: docs/energy_weights.md. Until 2026-12-04 the default was beta 3, gamma 0.5, unscaled.
 DEFAULT_AFF_NORM: AffNorm = "verb-best"
 DEFAULT_ALPHA = 1.0
 DEFAULT_BETA = 8.0
@@ -66,8 +66,8 @@ class GroundingSettings(BaseModel):
     #: ``verb-best``: scale each verb's E_aff so its best object in the bundle is -1 (see ``AffNorm``).
     #: The normalized product rewards the share of a verb's property weight an object covers, and
     #: a verb whose properties are alternatives ("a toy" or "game equipment" or "an instrument",
-    #: for *play*) is never covered by one object: its best object sits near -0.5 where a verb
-    #: with one defining property reaches -0.9. Unscaled, the grasp and alignment terms outvote
+    #: for *play*) is never covered by one object: its best object sits near -0.6 where a verb
+    #: with one defining property reaches -0.98. Unscaled, the grasp and alignment terms outvote
     #: the knowledge of the first kind of verb twice as easily (``docs/energy_weights.md``).
     aff_norm: AffNorm = DEFAULT_AFF_NORM
     energy_form: EnergyForm | None = None
