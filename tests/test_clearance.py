@@ -190,8 +190,8 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
         PipelineConfig,
         fitting_with_refinements,
         raw_candidates,
-        roi_points,
     )
+    from craft_e.runtime.sim.surface import RaisedPoints
 
     spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
     config = PipelineConfig()
@@ -204,13 +204,12 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
         rois = segment(obs).rois
         knife = max(range(len(rois)), key=lambda i: int((rois[i].mask & (obs.seg == env.scene.target.body_id)).sum()))
         table_z = env.scene.layout.table_z
-        world = obs.points_world()
-        raised = np.nan_to_num(world[..., 2], nan=table_z) > table_z + config.fingers.height_tolerance
+        raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
         raw = raw_candidates(env.scene, obs, [rois[knife]], [None], config)[0]
-        material = roi_points(world, raised, rois[knife])
+        material = raised.within(rois[knife].mask)
         fitting = fitting_with_refinements(raw, material, obs, table_z, config)
         assert fitting
-        heights = heights_around(world, raised, rois[knife].mask, table_z, on.clearance)
+        heights = heights_around(raised, rois[knife].mask, table_z, on.clearance)
         assert heights is not None
         assert plan_pick(env, fitting[0].pose, config.pick, heights) is None  # the check is off by default
         assert plan_pick(env, fitting[0].pose, config.pick) is None  # IK alone accepts it

@@ -97,3 +97,11 @@ def test_roi_from_mask_within_a_window_is_the_same() -> None:
         part = roi_from_mask(mask, label=3, within=within)
         assert part.box_xywh == full.box_xywh and part.area == full.area
         assert part.centroid == full.centroid and part.mask is mask
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 1001])
+def test_doubled_median_is_twice_numpy_median(n: int) -> None:
+    """Exact for odd and even counts, skewed and flat value spreads."""
+    rng = np.random.default_rng(n)
+    for values in (rng.integers(0, 256, n, dtype=np.uint8), (rng.random(n) ** 4 * 255).astype(np.uint8)):
+        assert _doubled_median(values, n) == int(2 * np.median(values.astype(np.float64)))

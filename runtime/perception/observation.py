@@ -53,12 +53,36 @@ class Observation:
         computed once per frame and shared (read-only)."""
         return self._points_world
 
+    def world_z(self) -> npt.NDArray[np.float64]:
+        """Per-pixel world height ``[H, W]`` (NaN where depth is invalid): ``points_world()[..., 2]``
+        without the other two coordinates, for masks of what stands above a table; computed once
+        per frame and shared (read-only)."""
+        return self._world_z
+
+    def points_world_at(self, pixels: npt.NDArray[np.intp]) -> npt.NDArray[np.float64]:
+        """World points ``[n, 3]`` of the flat pixel indices ``pixels``: ``points_world()`` at
+        those pixels, transformed for them alone (or read from it, once computed)."""
+        if "_points_world" in self.__dict__:  # the whole frame is already transformed
+            done: npt.NDArray[np.float64] = self._points_world.reshape(-1, 3)[pixels]
+            return done
+        rotation, translation = self.cam_to_world[:3, :3], self.cam_to_world[:3, 3]
+        out: npt.NDArray[np.float64] = self._points_camera.reshape(-1, 3)[pixels] @ rotation.T + translation
+        return out
+
     @cached_property
     def _points_camera(self) -> npt.NDArray[np.float64]:
+        # ``intrinsics.deproject(pixel grid, z)`` term by term: x = ((u - cx) / fx) * z with the
+        # bracket cached per camera (``_ray_factors``), written into one array instead of
+        # stacking three: the same IEEE operations in the same order, so the same bits, at about
+        # a third of the cost (every frame the robot captures pays for it)
         h, w = self.shape
         z = self.depth.astype(np.float64)
         z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
-        out = self.intrinsics.deproject(_pixel_grid(h, w), z)
+        along_x, along_y = _ray_factors(h, w, self.intrinsics)
+        out = np.empty((h, w, 3))
+        np.multiply(along_x, z, out=out[..., 0])
+        np.multiply(along_y, z, out=out[..., 1])
+        out[..., 2] = z
         out.flags.writeable = False
         return out
 
@@ -69,11 +93,23 @@ class Observation:
         out.flags.writeable = False
         return out
 
+    @cached_property
+    def _world_z(self) -> npt.NDArray[np.float64]:
+        if "_points_world" in self.__dict__:
+            z: npt.NDArray[np.float64] = self._points_world[..., 2]
+            return z
+        out: npt.NDArray[np.float64] = self._points_camera @ self.cam_to_world[2, :3] + self.cam_to_world[2, 3]
+        out.flags.writeable = False
+        return out
+
 
 @cache
-def _pixel_grid(h: int, w: int) -> npt.NDArray[np.float64]:
-    """``[H, W, 2]`` pixel coordinates (u, v), read-only, one per image size."""
+def _ray_factors(h: int, w: int, intrinsics: CameraIntrinsics) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """``[H, W]`` ``(u - cx) / fx`` and ``(v - cy) / fy`` per pixel, read-only, one pair per
+    camera: what ``CameraIntrinsics.deproject`` computes before multiplying by the depth."""
     v, u = np.mgrid[0:h, 0:w]
-    uv = np.stack([u, v], axis=-1).astype(np.float64)
-    uv.flags.writeable = False
-    return uv
+    along_x = (u.astype(np.float64) - intrinsics.cx) / intrinsics.fx
+    along_y = (v.astype(np.float64) - intrinsics.cy) / intrinsics.fy
+    for array in (along_x, along_y):
+        array.flags.writeable = False
+    return along_x, along_y

@@ -103,11 +103,11 @@ def open_3x3(mask: BoolMask) -> BoolMask:
 
 
 def _doubled_median(values: npt.NDArray[np.uint8], n: int) -> int:
-    """Twice the median of ``n`` uint8 values (an integer), from their histogram."""
-    cum = np.cumsum(np.bincount(values, minlength=256))
-    low = int(np.searchsorted(cum, (n - 1) // 2 + 1))  # value of rank (n - 1) // 2
-    high = int(np.searchsorted(cum, n // 2 + 1))  # value of rank n // 2
-    return low + high
+    """Twice the median of ``n`` uint8 values (an integer): the sum of its two middle ranks, by
+    one partial sort of the uint8 values themselves (exact; a histogram first converts every
+    value to a 64-bit index, ~6x slower on a frame's 280k table pixels)."""
+    middle = np.partition(values, [(n - 1) // 2, n // 2])
+    return int(middle[(n - 1) // 2]) + int(middle[n // 2])
 
 
 def _doubled_sq_distance(rgb: npt.NDArray[np.uint8], median2: npt.NDArray[np.int64]) -> npt.NDArray[np.int32]:

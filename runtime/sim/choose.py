@@ -34,6 +34,7 @@ import numpy.typing as npt
 from ..grounding.grounder import Grounding
 from ..perception.roi import ROI
 from .clearance import HeightMap
+from .surface import RaisedPoints
 
 if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder
@@ -72,7 +73,7 @@ class LazyROI:
     #: height map of the other objects is made from it) and its raw network grasps (opaque here)
     mask: npt.NDArray[np.bool_] | None = None
     material: npt.NDArray[np.float64] | None = None
-    raised: npt.NDArray[np.bool_] | None = None
+    raised: RaisedPoints | None = None
     raw: Sequence[Any] = ()
     region: Region | None = None  # the region itself, for the fallback's grasps (``sim/fallback.py``)
     #: the fallback's fitting grasps, best first, computed when called (``sim/fallback.py``): used
@@ -176,10 +177,8 @@ def perceive_for_pick(
         _stage,
         iter_fallback_fitting,
         iter_fitting_with_refinements,
-        raised_mask,
         raw_candidates,
         roi_colours,
-        roi_points,
         torch_threads,
     )
 
@@ -202,15 +201,14 @@ def perceive_for_pick(
     table_z = env.scene.layout.table_z
     out: list[LazyROI] = []
     with _stage(timings, "finger_checks"):
-        world = obs.points_world()  # [H, W, 3]
-        raised = raised_mask(world, table_z, config.fingers.height_tolerance)
+        raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
         for i, roi in enumerate(rois):
-            material = roi_points(world, raised, roi)  # [m, 3]
+            material = raised.within(roi.mask)  # [m, 3]
             box = tuple(float(v) for v in roi.box_xywh)
             out.append(LazyROI((box[0], box[1], box[2], box[3]), np.asarray(embeddings[i], np.float32),
-                               [], [], heights_around(world, raised, roi.mask, table_z, config.pick.clearance),
+                               [], [], heights_around(raised, roi.mask, table_z, config.pick.clearance),
                                measure_extents(material, table_z),
-                               roi_colours(obs.rgb, raised, roi) if colours else None, classes[i],
+                               roi_colours(obs.rgb, raised.mask, roi) if colours else None, classes[i],
                                unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
                                mask=roi.mask, material=material, raised=raised, raw=raw[i], region=roi,
                                fallback=(partial(iter_fallback_fitting, obs, roi, material, table_z, config)

@@ -34,6 +34,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from .surface import RaisedPoints
+
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
 
@@ -119,21 +121,20 @@ class HeightMap:
 
 
 def heights_around(
-    world: FloatArray, raised: BoolMask, target_mask: BoolMask, table_z: float, cfg: ClearanceConfig,
+    surface: RaisedPoints, target_mask: BoolMask, table_z: float, cfg: ClearanceConfig,
 ) -> HeightMap | None:
-    """The height map of an overhead frame's ``world`` ``[H, W, 3]`` points above the table,
-    the target's own pixels (``target_mask``: its ROI) left out; None when the check is off (as
-    a filter and as a preference; relocation builds its own for the chosen region only:
-    ``heights_excluding``)."""
-    return heights_excluding(world, raised, target_mask, table_z, cfg) if cfg.enabled or cfg.prefer else None
+    """The height map of an overhead frame's points above the table (``surface``), the target's
+    own pixels (``target_mask``: its ROI) left out; None when the check is off (as a filter and
+    as a preference; relocation builds its own for the chosen region only: ``heights_excluding``)."""
+    return heights_excluding(surface, target_mask, table_z, cfg) if cfg.enabled or cfg.prefer else None
 
 
 def heights_excluding(
-    world: FloatArray, raised: BoolMask, target_mask: BoolMask, table_z: float, cfg: ClearanceConfig,
+    surface: RaisedPoints, target_mask: BoolMask, table_z: float, cfg: ClearanceConfig,
 ) -> HeightMap:
     """The height map of the surfaces above the table outside ``target_mask`` (see
     ``heights_around``), whatever the check's switches say."""
-    return HeightMap(world[raised & ~target_mask], cfg.cell, table_z)
+    return HeightMap(surface.outside(target_mask), cfg.cell, table_z)
 
 
 @functools.cache

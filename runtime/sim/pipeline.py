@@ -86,6 +86,7 @@ from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
 from .retry import Attempt, RetryConfig, hand_empty, return_home, same_grasp
 from .scene import Scene, SceneSpec
+from .surface import RaisedPoints
 
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
@@ -441,18 +442,10 @@ def fallback_with_refinements(
 
 
 def raised_mask(world: FloatArray, table_z: float, tolerance: float) -> BoolMask:
-    """``[H, W]`` pixels whose point lies more than ``tolerance`` above the table (NaN: not):
-    the object surfaces the grasp checks and the size cue's extents read."""
+    """``[H, W]`` pixels whose point lies more than ``tolerance`` above the table (NaN: not),
+    from the whole frame's world points (the evaluations that have them; the grasp checks and
+    the size cue read ``RaisedPoints``, the same mask made from the heights alone)."""
     out: BoolMask = np.nan_to_num(world[..., 2], nan=table_z) > table_z + tolerance
-    return out
-
-
-def roi_points(world: FloatArray, raised: BoolMask, roi: Region) -> FloatArray:
-    """The ROI's raised depth points ``[m, 3]`` (row-major order, as ``world[mask & raised]``),
-    gathered inside its box only: the grasp checks need them for every ROI."""
-    x, y, w, h = roi.box_xywh
-    box = (slice(y, y + h), slice(x, x + w))
-    out: FloatArray = world[box][roi.mask[box] & raised[box]]
     return out
 
 
@@ -640,16 +633,15 @@ def perceive(
     table_z = scene.layout.table_z
     perceived: list[PerceivedROI] = []
     with _stage(timings, "grasp_checks"):
-        world = obs.points_world()  # [H, W, 3]
-        raised = raised_mask(world, table_z, config.fingers.height_tolerance)
+        raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
         clear = config.pick.clearance
-        surfaces = [_Surfaces(roi_points(world, raised, roi), table_z,
-                              heights_around(world, raised, roi.mask, table_z, clear)) for roi in rois]
+        surfaces = [_Surfaces(raised.within(roi.mask), table_z, heights_around(raised, roi.mask, table_z, clear))
+                    for roi in rois]
         checked = [_usable(env, with_refinements(raw[i], s.material, obs, table_z, config), s, config, exclude,
                            partial(fallback_with_refinements, obs, rois[i], s.material, table_z, config))
                    for i, s in enumerate(surfaces)]
         extents = [measure_extents(s.material, table_z) for s in surfaces]
-        shares = [roi_colours(obs.rgb, raised, roi) if colours else None for roi in rois]
+        shares = [roi_colours(obs.rgb, raised.mask, roi) if colours else None for roi in rois]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
@@ -663,8 +655,8 @@ def perceive(
             target_roi = best
     assert obs.seg is not None
     target_mask = obs.seg == target_body
-    target_surfaces = _Surfaces(world[target_mask & raised], table_z,
-                                heights_around(world, raised, target_mask, table_z, config.pick.clearance))
+    target_surfaces = _Surfaces(raised.within(target_mask), table_z,
+                                heights_around(raised, target_mask, table_z, config.pick.clearance))
     three_d, why = _three_d(env, obs, perceived[target_roi] if target_roi is not None else None,
                             target_body, target_surfaces, config)
     return ScenePerception(
@@ -971,27 +963,24 @@ def relocated_grasp(
     check plans the pick from the current posture. The moved grasp keeps the network grasp's
     quality, so grounding is unaffected."""
     assert grasp.pose is not None
-    world = obs.points_world()
-    raised = raised_mask(world, env.scene.layout.table_z, config.fingers.height_tolerance)
+    raised = RaisedPoints.of(obs, env.scene.layout.table_z, config.fingers.height_tolerance)
     others = [c.pose for c in roi.candidates if c.pose is not None and c.pose is not grasp.pose]
-    return relocate_candidate(env, obs, roi.roi.mask, raised, roi_points(world, raised, roi.roi), grasp, others,
-                              config)
+    return relocate_candidate(env, obs, roi.roi.mask, raised, raised.within(roi.roi.mask), grasp, others, config)
 
 
 def relocate_candidate(
-    env: SimEnv, obs: Observation, mask: BoolMask, raised: BoolMask, material: FloatArray, grasp: GraspCandidate,
+    env: SimEnv, obs: Observation, mask: BoolMask, raised: RaisedPoints, material: FloatArray, grasp: GraspCandidate,
     others: Iterable[TopDownGrasp], config: PipelineConfig, plans: PlanCache | None = None,
 ) -> tuple[GraspCandidate, str]:
     """What both paths share (``relocated_grasp``, ``choose.relocate_choice``): the search over
     the region's own depth points (``material``) against the height map of everything outside
     its ``mask``, and the moved grasp as a candidate with the network grasp's quality.
-    ``raised``: the frame's ``raised_mask`` (the caller has it: made once per frame)."""
+    ``raised``: the frame's raised points (the caller has them: made once per frame)."""
     from .relocate import RelocateConfig, relocate_if_blocked
 
     assert grasp.pose is not None
     table_z = env.scene.layout.table_z
-    world = obs.points_world()
-    heights = heights_excluding(world, raised, mask, table_z, config.pick.clearance)
+    heights = heights_excluding(raised, mask, table_z, config.pick.clearance)
     result = relocate_if_blocked(
         grasp.pose, others, material, heights,
         lambda g, h: pick_problems(env, g, config.pick, h, plans),
