@@ -50,6 +50,23 @@ def test_height_map_keeps_the_highest_surface_and_treats_unseen_cells_as_free() 
     assert HeightMap(np.zeros((0, 3)), 0.005, 0.0).heights(np.zeros((1, 2)))[0] == 0.0
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_height_map_equals_the_pairwise_scatter(seed: int) -> None:
+    """The flat-index scatter builds the same map, bit for bit, as a max over (row, column)
+    pairs of the points' cells, NaN rows dropped (the form it replaced)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.random((3000, 3)) * [0.3, 0.2, 0.1] + [0.4, -0.1, 0.7]
+    pts[rng.random(3000) < 0.05, rng.integers(0, 3)] = np.nan
+    finite = pts[np.isfinite(pts).all(axis=1)]
+    origin = finite[:, :2].min(axis=0)
+    idx = np.floor((finite[:, :2] - origin) / 0.005).astype(np.intp)
+    want = np.full((int(idx[:, 0].max()) + 1, int(idx[:, 1].max()) + 1), 0.7)
+    np.maximum.at(want, (idx[:, 0], idx[:, 1]), finite[:, 2])
+    got = HeightMap(pts, 0.005, 0.7)
+    assert np.array_equal(got.origin, origin)
+    assert np.array_equal(got.z, want)
+
+
 def test_a_tall_box_beside_a_thin_object_blocks_the_hand_unless_it_turns_away() -> None:
     """A knife along y at the origin (1.5 cm high), a 21 cm box 5 cm away along x."""
     knife = block(-0.008, 0.008, -0.10, 0.10, 0.015)

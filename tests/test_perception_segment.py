@@ -172,3 +172,24 @@ def test_predicted_rois_match_ground_truth_boxes_including_thin_tools() -> None:
     assert ious["flat_screwdriver"] >= 0.5, ious
     assert sum(iou >= 0.5 for iou in ious.values()) >= 4, ious
     assert len(predicted) <= len(reference) + 1, "spurious ROIs on an empty table"
+
+
+@pytest.mark.parametrize("size", [(60, 80), (200, 260)])  # all points sampled; a 20k subsample
+def test_plane_fit_of_an_image_view_equals_the_fit_of_its_finite_rows(size: tuple[int, int]) -> None:
+    """``fit_plane`` takes a strided image view without copying it and gathers only the sampled
+    points: the plane and inlier count are those of the finite rows passed as a list (the form
+    that gathered every finite point first), bit for bit."""
+    rng = np.random.default_rng(size[0])
+    h, w = size
+    image = np.empty((2 * h, 2 * w, 3))
+    image[..., 0], image[..., 1] = rng.uniform(-0.3, 0.3, (2, 2 * h, 2 * w))
+    image[..., 2] = 0.6 + 0.05 * image[..., 0] + rng.normal(0, 0.0008, (2 * h, 2 * w))
+    image[rng.random((2 * h, 2 * w)) < 0.2] = 0.45  # clutter above the table
+    image[rng.random((2 * h, 2 * w)) < 0.1, rng.integers(0, 3)] = np.nan  # no depth
+    view = image[::2, ::2]
+    rows = view.reshape(-1, 3)
+    finite_rows = rows[np.isfinite(rows).all(axis=1)]
+    fits = [fit_plane(view), fit_plane(rows), fit_plane(finite_rows)]
+    for plane, inliers in fits[1:]:
+        assert inliers == fits[0][1]
+        assert np.array_equal(plane.normal, fits[0][0].normal) and plane.offset == fits[0][0].offset

@@ -69,18 +69,22 @@ def _least_squares(points: FloatArray) -> Plane:
 
 
 def fit_plane(points: FloatArray, config: PlaneFitConfig | None = None) -> tuple[Plane, int]:
-    """Fit the plane with the most inliers among finite ``points [n, 3]``; returns (plane, inliers).
+    """Fit the plane with the most inliers among the finite ``points [..., 3]`` (a list ``[n, 3]``
+    or an image ``[H, W, 3]``, taken in row-major order); returns (plane, inliers).
 
     Seeded, so the same image gives the same plane.
     """
     cfg = config or PlaneFitConfig()
-    # a row is finite iff its sum is (metres: no overflow); the columns added as three vector
-    # adds, faster than numpy's sum over an axis of length 3 (the mask is the same)
-    pts = points[np.isfinite(points[:, 0] + points[:, 1] + points[:, 2])]
-    if len(pts) < 3:
+    # a point is finite iff its coordinates' sum is (metres: no overflow); the columns added as
+    # three vector adds, faster than numpy's sum over an axis of length 3 (the mask is the same)
+    finite = np.flatnonzero(np.isfinite(points[..., 0] + points[..., 1] + points[..., 2]))
+    if len(finite) < 3:
         raise ValueError("need at least 3 valid depth points to fit a plane")
-    chosen, triples = _draws(len(pts), cfg.seed, cfg.max_samples, cfg.iterations)
-    sample = pts if chosen is None else pts[chosen]
+    chosen, triples = _draws(len(finite), cfg.seed, cfg.max_samples, cfg.iterations)
+    # only the sampled points are gathered (the finite points' ``chosen`` rows): the same sample
+    # as gathering every finite point first, without copying the ~4x as many that RANSAC never reads
+    picked = finite if chosen is None else finite[chosen]
+    sample = points[picked] if points.ndim == 2 else points[np.unravel_index(picked, points.shape[:-1])]
     planes = (_plane_through(sample[t]) for t in _preempted(triples, sample, cfg))
     candidates = [c for c in planes if c is not None]
     if not candidates:

@@ -54,7 +54,7 @@ def table_plane(
     """The dominant plane in the camera frame, oriented towards the camera (``points``: the
     frame's ``points_camera()`` if already computed)."""
     pts = obs.points_camera() if points is None else points
-    plane, _ = fit_plane(pts[:: config.fit_stride, :: config.fit_stride].reshape(-1, 3), config.plane)
+    plane, _ = fit_plane(pts[:: config.fit_stride, :: config.fit_stride], config.plane)  # a view: no copy
     return plane.facing(np.zeros(3))
 
 
@@ -111,11 +111,18 @@ def _doubled_median(values: npt.NDArray[np.uint8], n: int) -> int:
 
 
 def _doubled_sq_distance(rgb: npt.NDArray[np.uint8], median2: npt.NDArray[np.int64]) -> npt.NDArray[np.int32]:
-    """``4 * |rgb - median|^2`` per pixel ``[...]``, exact in integers (at most 3 x 510^2, so
-    int32), by a 256-entry table per channel: three gathers and two adds per pixel."""
+    """``4 * |rgb - median|^2`` per pixel ``[H, W]``, exact in integers (at most 3 x 510^2, so
+    int32), by a 256-entry table per channel: three gathers and two adds per pixel, into
+    preallocated arrays (``np.take(..., out=)``: ~40 % faster than indexing, which allocates)."""
     doubled = 2 * np.arange(256, dtype=np.int32)
     tables = [(doubled - np.int32(m)) ** 2 for m in median2.tolist()]
-    out: npt.NDArray[np.int32] = tables[0][rgb[..., 0]] + tables[1][rgb[..., 1]] + tables[2][rgb[..., 2]]
+    out: npt.NDArray[np.int32] = np.empty(rgb.shape[:-1], dtype=np.int32)
+    part = np.empty_like(out)
+    np.take(tables[0], rgb[..., 0], out=out)
+    np.take(tables[1], rgb[..., 1], out=part)
+    out += part
+    np.take(tables[2], rgb[..., 2], out=part)
+    out += part
     return out
 
 
@@ -125,20 +132,23 @@ def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentati
     points = obs.points_camera()  # [H, W, 3], once for the plane fit and the heights
     plane = table_plane(obs, cfg, points)
     height = plane.distance(points)  # [H, W], NaN where depth is invalid
-    valid = np.isfinite(height)
-    h = np.nan_to_num(height, nan=-1.0)
-    above = valid & (h > cfg.height_threshold)
+    # a comparison with NaN is False, so pixels without depth are in none of these masks
+    above = height > cfg.height_threshold
     foreground = above
     if cfg.colour_cue:
-        on_table = valid & (np.abs(h) <= cfg.plane.inlier_threshold)
-        near_plane = valid & (h >= -cfg.colour_max_below) & ~above
+        on_table = np.abs(height) <= cfg.plane.inlier_threshold
+        near_plane = (height >= -cfg.colour_max_below) & ~above
         foreground = above | _colour_foreground(obs.rgb, on_table, near_plane, cfg)
-    labels, count = ndimage.label(foreground, structure=_EIGHT_CONNECTED)
+    labels, _ = ndimage.label(foreground, structure=_EIGHT_CONNECTED)
     max_area = cfg.max_area_fraction * foreground.size
-    areas = np.bincount(labels.ravel(), minlength=count + 1)
     rois: list[Region] = []
     for index, box in enumerate(ndimage.find_objects(labels), start=1):
-        if box is None or areas[index] < cfg.min_area or areas[index] > max_area:
+        if box is None:
+            continue
+        # counted inside the component's box (every pixel of it lies there): the same count as a
+        # histogram of the whole label image, without converting 300k labels to 64-bit indices
+        area = int(np.count_nonzero(labels[box] == index))
+        if area < cfg.min_area or area > max_area:
             continue
         mask, within = _filled(labels, index, box)
         rois.append(roi_from_mask(mask, within=within))
