@@ -196,3 +196,31 @@ def test_cli_size_cue_without_sizes_is_a_clear_error(tmp_path: Path, kb_a: Fixtu
     assert result.exit_code == 2, result.output
     assert "no typical size" in result.output and "craftc curate pending --prompt object_size" in result.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("n", [30, 31, 101, 2000, 6543])
+def test_extents_percentiles_equal_numpy_percentile(n: int) -> None:
+    """``extents._percentiles`` and ``measure_extents`` give numpy's values bit for bit (the
+    form they replaced: one ``np.percentile`` over the height and both spans)."""
+    from craft_e.runtime.perception.extents import (
+        EDGE_PERCENTILE,
+        TOP_PERCENTILE,
+        _percentiles,
+        measure_extents,
+    )
+
+    rng = np.random.default_rng(n)
+    pts = rng.normal(0, 1, (n, 3)) * [0.05, 0.02, 0.01] + [0.4, 0.1, 0.75]
+    pts[: n // 7, 2] = 0.75  # ties
+    for column in pts.T:
+        for percents in ((98.0,), (99.0, 1.0), (50.0, 0.0, 100.0, 37.5)):
+            assert _percentiles(column, percents) == [float(v) for v in np.percentile(column, percents)]
+    xy = pts[:, :2] - pts[:, :2].mean(axis=0)
+    _, axes = np.linalg.eigh(np.cov(xy.T))
+    q = np.percentile(np.column_stack([pts[:, 2], xy @ axes]),
+                      [TOP_PERCENTILE, 100 - EDGE_PERCENTILE, EDGE_PERCENTILE], axis=0)
+    spans = q[1, 1:] - q[2, 1:]
+    want = tuple(sorted((float(spans[0]), float(spans[1]), float(q[0, 0]) - 0.7), reverse=True))
+    with_nan = np.vstack([pts, np.full((3, 3), np.nan)])
+    assert measure_extents(pts, 0.7) == want
+    assert measure_extents(with_nan, 0.7) == want
