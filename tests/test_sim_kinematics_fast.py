@@ -79,3 +79,43 @@ def test_into_limits_bit_for_bit() -> None:
     for _ in range(2000):
         q = rng.uniform(-12, 12, 6)
         assert _same_bits(robot._into_limits(q), _reference_into_limits(q, lower, upper))
+
+
+def test_forward_and_frames_is_one_walk_of_forward_and_frames(chain: SerialChain) -> None:
+    """The clearance check walks the chain once per pose for the TCP and the joint frames
+    (``CR3Robot.forward_and_joints``): the same matrices as ``forward`` and ``frames`` apart."""
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        q = rng.uniform(-math.pi, math.pi, 6)
+        end, frames = chain.forward_and_frames(q)
+        assert _same_bits(end, chain.forward(q))
+        separate = chain.frames(q)
+        assert list(frames) == list(separate)
+        assert all(_same_bits(frames[name], separate[name]) for name in separate)
+
+
+def test_limit_check_and_rotation_angle_equal_their_numpy_forms() -> None:
+    """``_into_limits_checked``'s flag is ``np.all(q >= lower) and np.all(q <= upper)`` (NaN:
+    outside) and ``rotation_angle`` sums the trace as ``np.trace`` does: the same answers, bit for
+    bit, on the IK path that checks both at every waypoint."""
+    from craft_e.runtime.sim.robot import rotation_angle
+    from craft_e.runtime.sim.transforms import quat_to_matrix, rpy_to_quat
+
+    robot = CR3Robot.__new__(CR3Robot)
+    lower = np.array([-6.2, -3.1, -2.7, -6.2, -6.2, -6.2])
+    upper = np.array([6.2, 3.1, 2.7, 6.2, 6.2, 6.2])
+    robot._lower, robot._upper = lower, upper
+    robot._limit_pairs = list(zip(lower.tolist(), upper.tolist(), strict=True))
+    rng = np.random.default_rng(3)
+    for k in range(2000):
+        q = rng.uniform(-12, 12, 6)
+        if k % 50 == 0:
+            q[k % 6] = np.nan
+        wrapped, within = robot._into_limits_checked(q)
+        assert _same_bits(wrapped, robot._into_limits(q))
+        assert within == bool(np.all(wrapped >= lower) and np.all(wrapped <= upper))
+    for _ in range(500):
+        a = quat_to_matrix(rpy_to_quat(*rng.uniform(-math.pi, math.pi, 3)))
+        b = quat_to_matrix(rpy_to_quat(*rng.uniform(-math.pi, math.pi, 3)))
+        cos = (np.trace(a.T @ b) - 1.0) / 2.0
+        assert rotation_angle(a, b) == float(math.acos(max(-1.0, min(1.0, cos))))

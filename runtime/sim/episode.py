@@ -238,10 +238,10 @@ def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: Clearanc
     start, pre = robot.joint_positions(), plan.pre.q
     path = [start + t * (pre - start) for t in np.linspace(0.0, 1.0, cfg.path_samples + 1)[1:]]
     poses = [*path, plan.descent[-1].q]
-    tcps = [robot.forward(q) for q in poses]
+    walked = [robot.forward_and_joints(q, cfg.arm_joints) for q in poses]  # one chain walk per pose
     # the poses in order, hand before arm: hand_hits / arm_hits pose by pose, in one lookup each
-    why = first_hit(np.array([t.position for t in tcps]), [t.yaw for t in tcps],
-                    np.array([robot.joint_points(q, cfg.arm_joints) for q in poses]), boxes, obstacles, cfg)
+    why = first_hit(np.array([t.position for t, _ in walked]), [t.yaw for t, _ in walked],
+                    np.array([joints for _, joints in walked]), boxes, obstacles, cfg)
     return None if why is None else f"approach blocked: {why}"
 
 

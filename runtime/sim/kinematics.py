@@ -117,6 +117,13 @@ class SerialChain:
         self._walk(q, out)
         return out
 
+    def forward_and_frames(self, q: npt.NDArray[np.float64]) -> tuple[Mat4, dict[str, Mat4]]:
+        """``forward(q)`` and ``frames(q)`` from one walk down the chain (the same matrices as
+        calling both: the clearance check needs both for every pose it checks)."""
+        out: dict[str, Mat4] = {}
+        end = self._walk(q, out)
+        return end, out
+
     def _walk(self, q: npt.NDArray[np.float64], frames: dict[str, Mat4] | None) -> Mat4:
         """The chain's poses joint by joint (recorded in ``frames`` if given); the last one."""
         pose = _EYE4.copy()  # copies, not np.eye: the same matrices at a tenth of the cost

@@ -11,6 +11,7 @@ half-executed.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -44,9 +45,18 @@ def top_down_rotation(yaw: float) -> FloatArray:
     """TCP orientation with the approach axis pointing down and the closing axis at ``yaw``.
 
     The hand closes along its local y axis; ``Rz(yaw + pi/2) @ Rx(pi)`` sends that axis to
-    ``(cos yaw, sin yaw, 0)`` and the approach axis z to world -z.
+    ``(cos yaw, sin yaw, 0)`` and the approach axis z to world -z. Read-only: the matrix of a
+    yaw is made once (``_top_down_rotation``), since a plan asks for the same yaw at every
+    waypoint of a line (~50 per pick on the robot's path).
     """
-    return quat_to_matrix(top_down_quat(yaw))
+    return _top_down_rotation(float(yaw))
+
+
+@functools.lru_cache(maxsize=64)
+def _top_down_rotation(yaw: float) -> FloatArray:
+    rotation = quat_to_matrix(top_down_quat(yaw))
+    rotation.flags.writeable = False
+    return rotation
 
 
 def top_down_quat(yaw: float) -> tuple[float, float, float, float]:
@@ -61,8 +71,11 @@ def closing_yaw(rotation: FloatArray) -> float:
 
 
 def rotation_angle(a: FloatArray, b: FloatArray) -> float:
-    """Angle of the relative rotation between two rotation matrices (rad)."""
-    cos = (np.trace(a.T @ b) - 1.0) / 2.0
+    """Angle of the relative rotation between two rotation matrices (rad). The trace is summed
+    on Python floats in ``np.trace``'s order (the same additions, without its per-call cost:
+    every IK waypoint of a plan checks its angle)."""
+    diagonal = np.diagonal(a.T @ b).tolist()
+    cos = (diagonal[0] + diagonal[1] + diagonal[2] - 1.0) / 2.0
     return float(math.acos(max(-1.0, min(1.0, cos))))
 
 
@@ -200,6 +213,12 @@ class CR3Robot:
         frames = self.chain.frames(q)
         return np.array([frames[n][:3, 3] for n in names]) + self.base_position
 
+    def forward_and_joints(self, q: FloatArray, names: Sequence[str]) -> tuple[TcpPose, FloatArray]:
+        """``forward(q)`` and ``joint_points(q, names)`` from one walk of the model chain."""
+        local, frames = self.chain.forward_and_frames(q)
+        return (TcpPose(local[:3, 3] + self.base_position, local[:3, :3]),
+                np.array([frames[n][:3, 3] for n in names]) + self.base_position)
+
     def reset_home(self) -> None:
         """Teleport to the home configuration (setup only) and hold it."""
         for joint, value in zip(self.arm_joints, HOME_Q, strict=True):
@@ -281,12 +300,12 @@ class CR3Robot:
         if found is None:
             return None
         q, reached, at = found
-        q = self._into_limits(q)  # whole turns of a joint: the same pose
+        q, within = self._into_limits_checked(q)  # whole turns of a joint: the same pose
         solution = IKSolution(
             q=q,
             position_error=float(np.linalg.norm(at + self.base_position - target)),
             angle_error=rotation_angle(reached, rotation),
-            within_limits=bool(np.all(q >= self._lower) and np.all(q <= self._upper)),
+            within_limits=within,
         )
         # Not good enough (outside the limits, say): pybullet's solver may find another posture.
         return solution if solution.ok(self.config) else None
@@ -310,6 +329,11 @@ class CR3Robot:
     def _into_limits(self, q: FloatArray) -> FloatArray:
         """``q`` with each joint outside its limits shifted by +-2 pi where that lands inside
         (Python floats: the same IEEE additions and comparisons as on numpy scalars, faster)."""
+        return self._into_limits_checked(q)[0]
+
+    def _into_limits_checked(self, q: FloatArray) -> tuple[FloatArray, bool]:
+        """``_into_limits(q)`` and whether every joint of it is within its limits (the check of
+        ``np.all(q >= lower) and np.all(q <= upper)``, NaN outside, on the same floats)."""
         wrapped = q.tolist()
         for i, (lower, upper) in enumerate(self._limit_pairs):
             for shift in (2 * math.pi, -2 * math.pi):
@@ -317,7 +341,8 @@ class CR3Robot:
                     candidate = wrapped[i] + shift
                     if lower <= candidate <= upper:
                         wrapped[i] = candidate
-        return np.array(wrapped, dtype=np.float64)
+        within = all(lower <= v <= upper for v, (lower, upper) in zip(wrapped, self._limit_pairs, strict=True))
+        return np.array(wrapped, dtype=np.float64), within
 
     def plan_linear(self, start_q: FloatArray, target: Point3, yaw: float) -> list[IKSolution]:
         """IK waypoints every ``cartesian_step`` along the straight TCP line to ``target``.
