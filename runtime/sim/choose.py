@@ -167,7 +167,10 @@ def perceive_for_pick(
     Both networks run as their inference rewrites (``grasp.fused``, ``encoders.fused``: the
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
     evaluation's path, keeps the checkpoints' layer layout so published results reproduce.
-    ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue)."""
+    ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue).
+    Sets this process's numpy BLAS to one thread (``runtime/blas.py``: its spinning threads
+    slow torch)."""
+    from ..blas import single_threaded_blas
     from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box, inference_encoder
     from ..perception.extents import measure_extents
@@ -187,6 +190,7 @@ def perceive_for_pick(
     if config.pick.clearance.prefer:
         raise ValueError("the robot's lazy path does not implement the clearance preference yet "
                          "(ClearanceConfig.prefer); use perceive")
+    single_threaded_blas()
     with _stage(timings, "segment"):
         rois = segment(obs, config.segment).rois
     k = config.rgb_scale

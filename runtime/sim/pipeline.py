@@ -607,11 +607,14 @@ def perceive(
     given, receives the wall time of the robot-side stages (``ROBOT_STAGES``; rendering and the
     simulator's ground truth excluded) for ``benchmarks/bench_perception.py``. ``exclude`` marks
     grasps grounding must not use (``retry``: those that already failed). ``colours``: measure
-    each ROI's colour shares (only a grounder with the opt-in colour cue reads them).
+    each ROI's colour shares (only a grounder with the opt-in colour cue reads them). Sets this
+    process's numpy BLAS to one thread (``runtime/blas.py``: its spinning threads slow torch).
     """
+    from ..blas import single_threaded_blas
     from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box
 
+    single_threaded_blas()
     scene = env.scene
     obs = obs if obs is not None else env.capture()
     bodies = [o.body_id for o in scene.objects]
