@@ -69,12 +69,18 @@ def test_forward_kinematics_bit_for_bit(chain: SerialChain) -> None:
     assert _same_bits(chain.forward(q), _reference_forward(chain, q))
 
 
-def test_into_limits_bit_for_bit() -> None:
-    robot = CR3Robot.__new__(CR3Robot)  # only the limits are needed, not a physics client
+def _limits_only_robot() -> tuple[CR3Robot, np.ndarray, np.ndarray]:
+    """A CR3Robot with only its joint limits set (no physics client): what the limit checks read."""
+    robot = CR3Robot.__new__(CR3Robot)
     lower = np.array([-6.2, -3.1, -2.7, -6.2, -6.2, -6.2])
     upper = np.array([6.2, 3.1, 2.7, 6.2, 6.2, 6.2])
     robot._lower, robot._upper = lower, upper
     robot._limit_pairs = list(zip(lower.tolist(), upper.tolist(), strict=True))
+    return robot, lower, upper
+
+
+def test_into_limits_bit_for_bit() -> None:
+    robot, lower, upper = _limits_only_robot()
     rng = np.random.default_rng(1)
     for _ in range(2000):
         q = rng.uniform(-12, 12, 6)
@@ -101,11 +107,7 @@ def test_limit_check_and_rotation_angle_equal_their_numpy_forms() -> None:
     from craft_e.runtime.sim.robot import rotation_angle
     from craft_e.runtime.sim.transforms import quat_to_matrix, rpy_to_quat
 
-    robot = CR3Robot.__new__(CR3Robot)
-    lower = np.array([-6.2, -3.1, -2.7, -6.2, -6.2, -6.2])
-    upper = np.array([6.2, 3.1, 2.7, 6.2, 6.2, 6.2])
-    robot._lower, robot._upper = lower, upper
-    robot._limit_pairs = list(zip(lower.tolist(), upper.tolist(), strict=True))
+    robot, lower, upper = _limits_only_robot()
     rng = np.random.default_rng(3)
     for k in range(2000):
         q = rng.uniform(-12, 12, 6)
