@@ -69,8 +69,9 @@ class LazyROI:
     #: costs one finger check
     unchecked: Iterator[Any] | None = None
     #: for relocating a blocked chosen grasp (``relocate_choice``): the region's mask, its depth
-    #: points above the table, the frame's raised pixels (one array shared by its ROIs: the
-    #: height map of the other objects is made from it) and its raw network grasps (opaque here)
+    #: points above the table, the frame's raised pixels and their world points (one
+    #: ``RaisedPoints`` shared by its ROIs: the height map of the other objects is made from it)
+    #: and its raw network grasps (opaque here)
     mask: npt.NDArray[np.bool_] | None = None
     material: npt.NDArray[np.float64] | None = None
     raised: RaisedPoints | None = None

@@ -451,7 +451,8 @@ def raised_mask(world: FloatArray, table_z: float, tolerance: float) -> BoolMask
 
 def roi_colours(rgb: npt.NDArray[np.uint8], raised: BoolMask, roi: Region) -> tuple[float, ...] | None:
     """The ROI's colour shares (``perception/colours.py``) over the same raised pixels as
-    ``roi_points``: the object's own surface, not the table around it."""
+    ``RaisedPoints.within`` gives the grasp checks: the object's own surface, not the table
+    around it."""
     x, y, w, h = roi.box_xywh
     box = (slice(y, y + h), slice(x, x + w))
     return measure_colours(rgb[box][roi.mask[box] & raised[box]])
