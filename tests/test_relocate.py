@@ -61,6 +61,27 @@ def test_relocations_turn_first_then_slide_along_the_object_nearest_first_and_st
     assert all(abs(float(s.position[0])) < 1e-9 and s.position[2] == KNIFE_TOP for s in spots)
 
 
+def test_a_slide_that_reaches_the_objects_edge_is_not_a_spot() -> None:
+    """A slid centre needs object points on both sides along the slide (``RelocateConfig.interior``):
+    on a 4.4 cm ball a 2 cm slide from its centre ends 2 mm from the rim, where the fingers would
+    close on a sliver (sim-val's spin/racquetball/0 closed on nothing); the knife's tip is such an
+    edge too, its middle is not."""
+    rng = np.random.default_rng(0)
+    disc = rng.uniform(-0.022, 0.022, (4000, 2))
+    disc = disc[np.hypot(disc[:, 0], disc[:, 1]) <= 0.022]
+    ball = np.column_stack([disc, np.full(len(disc), 0.05)])  # its top, seen from above
+    centre = TopDownGrasp(np.array([0.0, 0.0, 0.05]), 0.0, 0.05)
+    slid = [s for s in relocations(centre, ball, RelocateConfig()) if float(np.hypot(*s.position[:2])) > 0]
+    assert slid == []  # +-2 cm end 2 mm inside the rim; 4 and 6 cm are off the ball
+    loose = [s for s in relocations(centre, ball, RelocateConfig(interior=False)) if float(np.hypot(*s.position[:2])) > 0]
+    assert {round(float(s.position[1]), 3) for s in loose} == {0.02, -0.02}
+    # on the knife, the 4 cm slide from y = 0.06 ends on its tip (y = 0.10): dropped; 2 cm is inside
+    ys = {round(float(s.position[1]), 3) for s in relocations(grasp_at(0.06), KNIFE, RelocateConfig())}
+    assert 0.08 in ys and 0.10 not in ys
+    assert 0.10 in {round(float(s.position[1]), 3)
+                    for s in relocations(grasp_at(0.06), KNIFE, RelocateConfig(interior=False))}
+
+
 def test_a_blocked_grasp_moves_to_the_first_clear_spot_and_a_clear_one_stays() -> None:
     box = block(0.05, 0.12, -0.10, -0.04, 0.21)  # a 21 cm box beside the knife's lower half
     heights = HeightMap(box, CFG.cell, 0.0)

@@ -45,6 +45,11 @@ class RelocateConfig:
     shifts: tuple[float, ...] = (0.02, 0.04, 0.06)  # m along the object (across the closing axis), each sign
     footing_radius: float = 0.01  # m: object points this close to the new centre carry it
     min_footing_points: int = 5  # fewer: the centre is off the object
+    # A slid centre must have object points on both sides along the slide, at least half the
+    # footing radius away each: one that reached the object's edge (a ball's rim) leaves the
+    # fingers a sliver to close on (sim-val's spin/racquetball/0 closed on nothing after a 4 cm
+    # slide on a 5 cm ball).
+    interior: bool = True
 
     def __post_init__(self) -> None:
         if any(not 0 < t < 90 for t in self.turns_deg):
@@ -71,6 +76,10 @@ def relocations(pose: TopDownGrasp, material: FloatArray, cfg: RelocateConfig) -
         near = pts[np.linalg.norm(pts[:, :2] - moved[:2], axis=1) <= cfg.footing_radius]
         if len(near) < cfg.min_footing_points:
             continue
+        if cfg.interior:
+            side = (near[:, :2] - moved[:2]) @ along[:2]
+            if not (side.min() <= -cfg.footing_radius / 2 and side.max() >= cfg.footing_radius / 2):
+                continue
         moved[2] = float(near[:, 2].max())
         for yaw in yaws:
             yield TopDownGrasp(moved.copy(), wrap_half_pi(pose.yaw + yaw), pose.width_m)
