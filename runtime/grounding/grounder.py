@@ -396,10 +396,8 @@ class Grounder:
                 "--lookalikes", "look-alike classes", names, bundle.lookalikes, "object_lookalike",
                 "the look-alike cue"))
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
-        # [V, 1] per-verb divisor of aff_norm "verb-best" (1: unscaled), from the bundle's own objects
-        self._verb_divisor = verb_best_divisor(full) if self.settings.aff_norm == "verb-best" else None
-        if self._verb_divisor is not None:
-            self._eaff = scale_negative(self._eaff, self._verb_divisor)
+        if self.settings.aff_norm == "verb-best":  # each verb by its best object in the bundle itself
+            self._eaff = scale_negative(self._eaff, verb_best_divisor(full))
 
         self._forbidden: dict[str, frozenset[str]] = {}
         for v, o in bundle.graph.forbidden_pairs():
