@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.episode import Outcome, PickResult, execute_pick
+from craft_e.runtime.sim.episode import Outcome, PickResult, execute_pick, release_spots
 from craft_e.runtime.sim.oracle import oracle_grasp
 from craft_e.runtime.sim.scene import SceneSpec
 
@@ -79,3 +80,35 @@ def test_no_grasp_and_unreachable_grasp_end_without_moving(env: SimEnv) -> None:
     assert unreachable.outcome is Outcome.IK_FAILURE and unreachable.steps == 0
     assert "unreachable" in unreachable.detail
     assert np.array_equal(env.robot.joint_positions(), q0)
+
+
+def test_release_spots_put_the_seen_centre_over_the_zone_then_fall_back_to_the_tcp() -> None:
+    zone = (0.02, -0.40)
+    assert release_spots(zone, (0.3, 0.1), 0.4, 0.0, None) == [zone]
+    assert release_spots(zone, (0.3, 0.1), 0.4, 0.0, (0.3005, 0.1)) == [zone]  # under 1 mm: no offset
+    # no turn: the TCP stands the offset short of the centre
+    first, second = release_spots(zone, (0.3, 0.1), 0.4, 0.4, (0.35, 0.1))
+    assert second == zone
+    assert first == pytest.approx((zone[0] - 0.05, zone[1]))
+    # the hand turns a quarter turn on the way: so does the object's offset from the TCP
+    first, _ = release_spots(zone, (0.3, 0.1), 0.0, math.pi / 2, (0.35, 0.1))
+    assert first == pytest.approx((zone[0], zone[1] - 0.05))
+
+
+def test_a_seen_centre_off_the_grasp_moves_where_the_object_lands(env: SimEnv) -> None:
+    """The same pick twice, the second told the object's centre lies 4 cm from the grasp: the
+    object lands about that offset (turned with the hand) away, and still in the zone."""
+    plain, _ = _oracle_pick(env, EASY)
+    assert plain.outcome is Outcome.SUCCESS
+    scene = env.reset(EASY)
+    grasp = oracle_grasp(scene, scene.target.body_id)
+    assert grasp is not None
+    offset = np.array([0.04, 0.0])
+    seen = (float(grasp.position[0] + offset[0]), float(grasp.position[1] + offset[1]))
+    moved = execute_pick(env, grasp, scene.target.body_id, object_xy=seen)
+    assert moved.outcome is Outcome.SUCCESS, moved
+    grasp_yaw = env.robot.nearest_yaw(grasp.yaw, env.robot.tcp_pose().yaw)
+    turn = env.robot.nearest_yaw(0.0, grasp_yaw) - grasp_yaw
+    expected = -np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]]) @ offset
+    shift = np.array(moved.target_final_xyz[:2]) - np.array(plain.target_final_xyz[:2])
+    assert np.linalg.norm(shift - expected) < 0.01, (shift, expected)

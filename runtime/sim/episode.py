@@ -132,14 +132,41 @@ def _all_ok(robot: CR3Robot, solutions: list[IKSolution]) -> bool:
     return all(s.ok(robot.config) for s in solutions)
 
 
+def release_spots(
+    zone_xy: tuple[float, float], grasp_xy: tuple[float, float], grasp_yaw: float, drop_yaw: float,
+    object_xy: tuple[float, float] | None,
+) -> list[tuple[float, float]]:
+    """Where the TCP may stand at release, in the order to try: first where the held object's
+    centre comes over the zone's centre, then the zone's centre itself.
+
+    Why: a long object held off-centre (a spatula by its handle, a wrench at one end, a skillet
+    lid by its rim) came to rest outside the zone with the TCP over its centre (sim-val: 3 of
+    378 CRAFT-E episodes). The object's offset from the grasp (``object_xy`` - ``grasp_xy``, from
+    the ROI's depth points: what the robot saw before it moved) turns with the hand, by
+    ``drop_yaw`` - ``grasp_yaw``. Without ``object_xy``, or an offset under 1 mm, only the centre.
+    """
+    spots = [zone_xy]
+    if object_xy is None:
+        return spots
+    dx, dy = object_xy[0] - grasp_xy[0], object_xy[1] - grasp_xy[1]
+    if math.hypot(dx, dy) < 1e-3:
+        return spots
+    turn = drop_yaw - grasp_yaw
+    c, s = math.cos(turn), math.sin(turn)
+    return [(zone_xy[0] - (c * dx - s * dy), zone_xy[1] - (s * dx + c * dy)), *spots]
+
+
 def _plan(
-    robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig, rise: float = 0.0
+    robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig, rise: float = 0.0,
+    object_xy: tuple[float, float] | None = None,
 ) -> _Plan | str:
     """All waypoints of the pick, or a string saying which one is unreachable.
 
     The lift rises by ``rise`` (to carry the object over the tallest thing on the table) when
     that is reachable, else by ``cfg.lift_height``; feasibility is that of the plain lift, so
-    ``plan_pick`` answers the same with or without ``rise``.
+    ``plan_pick`` answers the same with or without ``rise``. With ``object_xy`` (the object's
+    centre as seen) the release puts that centre over the zone when reachable
+    (``release_spots``), else the TCP over the zone as without it: feasibility is unchanged.
     """
     table_z = scene.layout.table_z
     x, y = float(grasp.position[0]), float(grasp.position[1])
@@ -169,24 +196,37 @@ def _plan(
     if not found:
         return f"no reachable lift of {cfg.lift_height} m above ({x:.3f}, {y:.3f})"
     lift_end = robot.forward(lift[-1].q).position
-    dz = scene.layout.drop_zone
-    drop_x, drop_y = dz.center
     drop_yaw = robot.nearest_yaw(0.0, yaw)
-    # Carry at the lift height if the zone is reachable there, else lower: the arm's reach
-    # shrinks with height and the zone lies near its edge.
     release_z = grasp_z + cfg.release_clearance
-    heights = np.arange(float(lift_end[2]), release_z + cfg.min_transport_gap, -0.02)
+    why = ""
+    for drop_x, drop_y in release_spots(scene.layout.drop_zone.center, (x, y), yaw, drop_yaw, object_xy):
+        placed = _place(robot, lift, float(lift_end[2]), (drop_x, drop_y), drop_yaw, release_z, cfg)
+        if not isinstance(placed, str):
+            return _Plan(pre, descent, lift, placed[0], placed[1], grasp_z)
+        why = placed
+    return why
+
+
+def _place(
+    robot: CR3Robot, lift: list[IKSolution], lift_z: float, drop_xy: tuple[float, float], drop_yaw: float,
+    release_z: float, cfg: PickConfig,
+) -> tuple[list[IKSolution], list[IKSolution]] | str:
+    """Transport from the lift's end to above ``drop_xy`` and the lowering to ``release_z``, or
+    what is unreachable. Carried at the lift height if the spot is reachable there, else lower:
+    the arm's reach shrinks with height and the zone lies near its edge."""
+    drop_x, drop_y = drop_xy
+    heights = np.arange(lift_z, release_z + cfg.min_transport_gap, -0.02)
     transport: list[IKSolution] = []
     for height in heights:
         transport = robot.plan_linear(lift[-1].q, (drop_x, drop_y, float(height)), drop_yaw)
         if _all_ok(robot, transport):
             break
     else:
-        return f"drop zone ({drop_x:.3f}, {drop_y:.3f}) unreachable below z={lift_end[2]:.3f}"
+        return f"drop zone ({drop_x:.3f}, {drop_y:.3f}) unreachable below z={lift_z:.3f}"
     lower = robot.plan_linear(transport[-1].q, (drop_x, drop_y, release_z), drop_yaw)
     if not _all_ok(robot, lower):
         return f"release pose ({drop_x:.3f}, {drop_y:.3f}, {release_z:.3f}) unreachable"
-    return _Plan(pre, descent, lift, transport, lower, grasp_z)
+    return transport, lower
 
 
 def plan_pick(
@@ -324,8 +364,12 @@ def execute_pick(
     grasp: TopDownGrasp | None,
     target_body: int,
     config: PickConfig | None = None,
+    object_xy: tuple[float, float] | None = None,
 ) -> PickResult:
-    """Run the pick in ``env``'s current scene and classify what happened."""
+    """Run the pick in ``env``'s current scene and classify what happened.
+
+    ``object_xy``: the object's centre on the table as the robot saw it (``object_centre``);
+    given, the release puts it, not the TCP, over the drop zone's centre when reachable."""
     cfg = config or PickConfig()
     robot, scene = env.robot, env.scene
     progress = _Progress(env, target_body, env.steps, _body_z(scene, target_body))
@@ -333,13 +377,13 @@ def execute_pick(
     if grasp is None:
         return progress.finish(Outcome.NO_GRASP, None, "no grasp candidate")
     rise = _clearing_rise(env, cfg)
-    plan = _plan(robot, scene, grasp, cfg, rise)
+    plan = _plan(robot, scene, grasp, cfg, rise, object_xy)
     if isinstance(plan, str):
         return progress.finish(Outcome.IK_FAILURE, None, plan)
 
     robot.gripper.open()
     robot.follow([plan.pre.q])
-    plan = _look_and_replan(env, grasp, plan, cfg, progress, rise)
+    plan = _look_and_replan(env, grasp, plan, cfg, progress, rise, object_xy)
     robot.follow([s.q for s in plan.descent])
     progress.measure_descent(plan.grasp_z)
     robot.gripper.close()
@@ -400,7 +444,7 @@ def _clearing_rise(env: SimEnv, cfg: PickConfig) -> float:
 
 def _look_and_replan(
     env: SimEnv, grasp: TopDownGrasp, plan: _Plan, cfg: PickConfig, progress: _Progress,
-    rise: float,
+    rise: float, object_xy: tuple[float, float] | None = None,
 ) -> _Plan:
     """At pre-grasp: one wrist depth frame, re-centre the grasp, re-plan the rest of the pick.
 
@@ -417,7 +461,7 @@ def _look_and_replan(
     correction = recentre(obs, grasp, tip_z, scene.layout.table_z, cfg.wrist)
     if correction.shift == 0.0:
         return plan
-    replanned = _plan(robot, scene, correction.grasp, cfg, rise)
+    replanned = _plan(robot, scene, correction.grasp, cfg, rise, object_xy)
     if isinstance(replanned, str):
         return plan
     robot.follow([replanned.pre.q])

@@ -86,7 +86,7 @@ from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
 from .retry import Attempt, RetryConfig, hand_empty, return_home, same_grasp
 from .scene import Scene, SceneSpec
-from .surface import RaisedPoints
+from .surface import RaisedPoints, object_centre
 
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
@@ -938,7 +938,8 @@ def run_episode(
                 if before_pick is not None:
                     before_pick(name)
                 picks[chosen.index] = execute_pick(
-                    env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick
+                    env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick,
+                    seen_centre(perception.obs, roi.roi.mask, env.scene.layout.table_z, cfg),
                 )
                 if retrying and hand_empty(picks[chosen.index]):
                     after_pick[chosen.index] = int(p.saveState(physicsClientId=env.client))
@@ -957,6 +958,12 @@ def run_episode(
         if env.client >= 0:
             for state in after_pick.values():
                 p.removeState(state, physicsClientId=env.client)
+
+
+def seen_centre(obs: Observation, mask: BoolMask, table_z: float, config: PipelineConfig) -> tuple[float, float] | None:
+    """The chosen region's object centre from the overhead frame (``surface.object_centre``),
+    over the same raised points as the grasp checks read."""
+    return object_centre(RaisedPoints.of(obs, table_z, config.fingers.height_tolerance), mask)
 
 
 def relocated_grasp(
@@ -1019,12 +1026,13 @@ def retry_picks(
         if chosen is None:
             attempts.append(Attempt(None, False, not_detected(perception).value))
             break
-        _, detect, grasp = chosen_region(perception, chosen, config.detect_iou)
+        roi, detect, grasp = chosen_region(perception, chosen, config.detect_iou)
         if not detect:
             attempts.append(Attempt(chosen.index, False, not_detected(perception).value))
             break
         pose = grasp.pose if grasp is not None else None
-        pick = execute_pick(env, pose, perception.target_body, config.pick)
+        pick = execute_pick(env, pose, perception.target_body, config.pick,
+                            seen_centre(perception.obs, roi.roi.mask, env.scene.layout.table_z, config))
         quality = grasp.quality if grasp is not None else None
         attempts.append(Attempt(chosen.index, True, PICK_FAILURES[pick.outcome].value, pick.detail, quality))
         if not hand_empty(pick) or pose is None:

@@ -51,3 +51,13 @@ class RaisedPoints:
         """World points of ``~pixels & mask``, row-major: every raised surface but ``pixels``'."""
         out: FloatArray = self.points[~pixels.ravel()[self.pixels]]
         return out
+
+
+def object_centre(raised: RaisedPoints, mask: BoolMask) -> tuple[float, float] | None:
+    """The centre on the table of the object under ``mask``: the mean x, y of its raised world
+    points (None without any). What the release aims at the drop zone (``episode.release_spots``):
+    the robot's own view before it moves, not the simulator's pose of the body."""
+    points = raised.within(mask)
+    if not len(points):
+        return None
+    return float(points[:, 0].mean()), float(points[:, 1].mean())
