@@ -3,7 +3,8 @@
 ``craft eval sim`` mixes choosing the object with picking it. This isolates the pick: for every
 episode of a labels file (the same scenes ``craft eval sim`` builds), the ROIs are the
 simulator's masks (``rois=oracle``), the target's ROI is taken as chosen, and its best usable
-grasp (GR-ConvNet by default, with the grasp checks) is executed. Outcomes are counted as in
+grasp (GR-ConvNet by default, with the grasp checks) is executed, released with the ROI's seen
+centre over the drop zone as in ``craft eval sim``. Outcomes are counted as in
 ``craft eval sim`` (``no_grasp`` when the target's ROI has no usable grasp).
 
 Run: ``.venv/bin/python benchmarks/bench_execution.py --labels artifacts/labels/sim_dev_labels.csv
@@ -24,7 +25,7 @@ from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.episode import execute_pick
-from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive
+from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive, seen_centre
 
 
 def _env_config(hand: str | None, force: float | None = None) -> EnvConfig:
@@ -54,7 +55,10 @@ def run(
                     outcome, detail = "no_grasp", "no usable grasp on the target's ROI"
                 else:
                     start.restore()
-                    result = execute_pick(env, usable[0].pose, perception.target_body, config.pick)
+                    assert index is not None
+                    centre = seen_centre(perception.obs, perception.rois[index].roi.mask,
+                                         env.scene.layout.table_z, config)
+                    result = execute_pick(env, usable[0].pose, perception.target_body, config.pick, centre)
                     outcome, detail = result.outcome.value, result.detail
             finally:
                 start.release()

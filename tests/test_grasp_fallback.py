@@ -169,8 +169,8 @@ def test_in_a_dev_scene_both_paths_give_the_dice_the_same_fallback_grasp() -> No
 
 
 def test_the_fallback_leaves_the_finger_checks_clearance_so_the_sponge_gets_a_grasp() -> None:
-    """``clean/sponge/1`` (sim-val): the sponge is about as wide as the Franka hand's 7.6 cm (the
-    opening less the finger check's 2 mm a side), and no network grasp fits. The sampler's
+    """``clean/sponge/1`` (sim-val): the sponge is about as wide as the Franka hand's 7.4 cm (the
+    opening less the finger check's 3 mm a side; 2 mm when this was written), and no network grasp fits. The sampler's
     own 5 mm a side capped its spans at 7 cm and left the sponge no grasp (the fallback's first
     setting, ``FallbackConfig(min_clearance_m=0.005)``); with the hand's clearance it proposes
     grasps across the sponge, and the finger and IK checks accept one."""

@@ -17,7 +17,7 @@ import pytest
 from craft_e.runtime.grasp.geometry import CameraIntrinsics
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.pipeline import raised_mask
-from craft_e.runtime.sim.surface import RaisedPoints
+from craft_e.runtime.sim.surface import RaisedPoints, object_centre
 
 
 def _frame(seed: int) -> Observation:
@@ -85,3 +85,17 @@ def test_raised_points_match_the_whole_frame_masks(seed: int) -> None:
 def test_a_negative_tolerance_is_refused() -> None:
     with pytest.raises(ValueError, match="tolerance must be >= 0"):
         RaisedPoints.of(_frame(0), 0.02, -0.001)
+
+
+def test_object_centre_is_the_mean_of_the_regions_raised_points() -> None:
+    obs = _frame(0)
+    table_z, tolerance = 0.8, 0.004  # the 8 cm block stands above this (and a few noisy pixels)
+    raised = RaisedPoints.of(obs, table_z, tolerance)
+    region = np.zeros(obs.shape, dtype=bool)
+    region[5:30, 15:45] = True  # around the block, with some table
+    points = raised.within(region)
+    assert len(points) > 100
+    assert np.array_equal(points, raised.within(region & raised.mask))  # only raised points count
+    centre = object_centre(raised, region)
+    assert centre == (float(points[:, 0].mean()), float(points[:, 1].mean()))
+    assert object_centre(raised, np.zeros(obs.shape, dtype=bool)) is None

@@ -3,7 +3,7 @@
 Why: on the dev episodes some regions get no network grasp the hand can close around. GR-ConvNet
 finds no peak at all on the dice and the golf ball (4 sim-val targets), and elsewhere every peak
 may close across a section wider than the hand (the sponge, whose section at the fingers' height
-is about the Franka hand's 7.6 cm limit, in 4 sim-val episodes).
+is about the Franka hand's limit, 7.6 cm when this was written, in 4 sim-val episodes).
 Grounding excludes a region without a usable grasp, so the knowledge never got a say
 (``no_grasp``). A robot is not limited to one grasp detector: the analytic antipodal sampler
 (``grasp/antipodal.py``) reads the same depth image and region mask and proposes grasps across
@@ -51,9 +51,9 @@ class FallbackConfig:
     quality_scale: float = 1.0
     #: the gap per side the sampler leaves between the open jaw and the object (its span limit is
     #: the opening less twice this); None: the hand's own finger-check clearance
-    #: (``FingerGeometry.clearance``, 2 mm on the Franka hand), since every fallback grasp goes
+    #: (``FingerGeometry.clearance``, 3 mm; 2 mm when this was chosen), since every fallback grasp goes
     #: through that check anyway. The sampler's own default, 5 mm, was the fallback's first
-    #: setting: it capped spans at 7 cm where the check allows 7.6, and the sponge (about as wide
+    #: setting: it capped spans at 7 cm where the check allowed 7.6, and the sponge (about as wide
     #: as the opening) got no grasp (``docs/results/sim_execution.md``).
     min_clearance_m: float | None = None
 
