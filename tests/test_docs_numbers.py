@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import re
+from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 import pytest
@@ -55,3 +56,27 @@ def test_serving_doc_example_is_the_example_scripts_answer(capsys: pytest.Captur
         assert f'"{key}": {best[key]:.3f}' in doc, key
     assert f'"p": {best["hypotheses"][0]["p"]:.3f}' in doc
     assert f'"property": "{best["paths"][1]["property"]}"' in doc or f'"property": "{best["paths"][0]["property"]}"' in doc
+
+
+CURRENT = re.compile(r"^\| sim-(dev|val), \d+ episodes \| `craft eval sim [^`]*--markdown (?P<md>\S+)` \|"
+                     r"(?P<cells>( [\d.]+ / [\d.]+ \|){4})$")
+RESULT_ROW = re.compile(r"^\| (?P<method>[A-Za-z-]+) \| [\d.]+ \| (?P<detect>[\d.]+) \| (?P<gr>[\d.]+) \|$")
+
+
+def test_readme_current_testbed_numbers_are_the_committed_tables() -> None:
+    """The README's "testbed's current numbers" table (Detect / Grasp Rate per method, rounded to
+    0.1) states what the results file its command writes holds: re-running a table and forgetting
+    the README would otherwise leave a newcomer reading stale numbers."""
+    rows = [m for line in (REPO_ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+            if (m := CURRENT.match(line))]
+    assert len(rows) == 2
+    def tenth(text: str) -> Decimal:  # 64.55 reads 64.6, as a person rounds the table's digits
+        return Decimal(text).quantize(Decimal("0.1"), rounding=ROUND_HALF_UP)
+
+    for m in rows:
+        results = {r["method"]: (tenth(r["detect"]), tenth(r["gr"]))
+                   for line in (REPO_ROOT / m["md"]).read_text(encoding="utf-8").splitlines()
+                   if (r := RESULT_ROW.match(line))}
+        stated = [tuple(Decimal(x) for x in cell.split(" / ")) for cell in m["cells"].strip(" |").split(" | ")]
+        for method, pair in zip(("CRAFT-E", "direct-LLM", "CRAFT", "alignment-only"), stated, strict=True):
+            assert pair == results[method], (m["md"], method, pair, results[method])
