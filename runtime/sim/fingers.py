@@ -24,10 +24,10 @@ class FingerGeometry:
 
     half_opening: float = 0.04  # m from the grasp centre to each pad's inner face
     # m wanted between each pad and the object as the fingers descend. 3 mm (was 2): at 2 mm,
-    # sections seen at 7.4-7.6 cm passed and three sim-val targets (shampoo, gelatin box, sponge)
-    # rode to the zone pinched between the fully open fingers and stayed there; at 3 mm each got
-    # another grasp and succeeded (sim-val CRAFT-E 237 -> 240 of 378, sim-dev 81 -> 81;
-    # docs/results/sim_execution.md)
+    # grasps on sections seen at 7.2-7.6 cm passed and five dev targets rode to the zone pinched
+    # between the fully open fingers and stayed there; at 3 mm three sim-val ones (shampoo,
+    # gelatin box, sponge) executed another grasp and succeeded (sim-val CRAFT-E 237 -> 240 of
+    # 378, sim-dev 81 -> 81; docs/results/sim_execution.md)
     clearance: float = 0.003
     thickness: float = 0.012  # m of finger along the closing axis: a narrower gap takes no finger
     pad_half_width: float = 0.01  # m of pad across the closing axis, each side of the axis
