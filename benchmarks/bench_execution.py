@@ -25,7 +25,8 @@ from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.episode import execute_pick
-from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive, seen_centre
+from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive
+from craft_e.runtime.sim.surface import object_centre
 
 
 def _env_config(hand: str | None, force: float | None = None) -> EnvConfig:
@@ -56,8 +57,7 @@ def run(
                 else:
                     start.restore()
                     assert index is not None
-                    centre = seen_centre(perception.obs, perception.rois[index].roi.mask,
-                                         env.scene.layout.table_z, config)
+                    centre = object_centre(perception.raised, perception.rois[index].roi.mask)
                     result = execute_pick(env, usable[0].pose, perception.target_body, config.pick, centre)
                     outcome, detail = result.outcome.value, result.detail
             finally:

@@ -238,6 +238,9 @@ class ScenePerception:
     target_roi: int | None  # index of the ROI that is the target (best IoU >= detect_iou)
     three_d: bool
     three_d_detail: str
+    #: the frame's raised pixels and world points, made once here: the grasp checks read them,
+    #: and the release aims the chosen region's centre (``surface.object_centre``) at the zone
+    raised: RaisedPoints
 
 
 @contextlib.contextmanager
@@ -671,6 +674,7 @@ def perceive(
         target_roi=target_roi,
         three_d=three_d,
         three_d_detail=why,
+        raised=raised,
     )
 
 
@@ -829,7 +833,7 @@ def true_class_grounding(
     gmax = np.array([max(c.quality for c in perception.rois[i].usable) for i in usable], np.float32)
     perceived = grounder.energies(verb, emb, gmax).p_obj  # [N, O]
     subset = ScenePerception(perception.obs, tuple(perception.rois[i] for i in usable),
-                             perception.target_body, perception.target_box, None, False, "")
+                             perception.target_body, perception.target_box, None, False, "", perception.raised)
     p_true = true_class_probabilities(grounder, perceived, subset, body_names)
     terms = grounder.energies(verb, emb, gmax, p_obj=p_true)
     e_aff = np.asarray(terms.e_aff, dtype=np.float64)
@@ -939,7 +943,7 @@ def run_episode(
                     before_pick(name)
                 picks[chosen.index] = execute_pick(
                     env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick,
-                    seen_centre(perception.obs, roi.roi.mask, env.scene.layout.table_z, cfg),
+                    object_centre(perception.raised, roi.roi.mask),
                 )
                 if retrying and hand_empty(picks[chosen.index]):
                     after_pick[chosen.index] = int(p.saveState(physicsClientId=env.client))
@@ -958,12 +962,6 @@ def run_episode(
         if env.client >= 0:
             for state in after_pick.values():
                 p.removeState(state, physicsClientId=env.client)
-
-
-def seen_centre(obs: Observation, mask: BoolMask, table_z: float, config: PipelineConfig) -> tuple[float, float] | None:
-    """The chosen region's object centre from the overhead frame (``surface.object_centre``),
-    over the same raised points as the grasp checks read."""
-    return object_centre(RaisedPoints.of(obs, table_z, config.fingers.height_tolerance), mask)
 
 
 def relocated_grasp(
@@ -1032,7 +1030,7 @@ def retry_picks(
             break
         pose = grasp.pose if grasp is not None else None
         pick = execute_pick(env, pose, perception.target_body, config.pick,
-                            seen_centre(perception.obs, roi.roi.mask, env.scene.layout.table_z, config))
+                            object_centre(perception.raised, roi.roi.mask))
         quality = grasp.quality if grasp is not None else None
         attempts.append(Attempt(chosen.index, True, PICK_FAILURES[pick.outcome].value, pick.detail, quality))
         if not hand_empty(pick) or pose is None:
