@@ -114,14 +114,25 @@ def test_a_surface_less_than_two_millimetres_above_a_box_bottom_does_not_block()
     assert hand_hits(tcp, 0.0, (finger,), edge, CFG) is not None
 
 
-def test_arm_capsules_touch_only_surfaces_within_their_radius() -> None:
+def _slab(x0: float, x1: float, y0: float, y1: float, z: float, step: float = 0.01) -> FloatArray:
+    """Points ``[n, 3]`` of a horizontal slab: the underside of a (made-up) arm link."""
+    return block(x0, x1, y0, y1, z, step)
+
+
+def test_arm_points_touch_only_surfaces_under_them() -> None:
+    """A link's points 3 cm above a tall bottle's top touch nothing; 1 cm into it, they do, and
+    the message names the link; beside the bottle (beyond ``arm_spacing``) they do not."""
     hm = HeightMap(block(0.20, 0.26, -0.03, 0.03, 0.22), CFG.cell, 0.0)  # a tall bottle
-    low = np.array([[0.0, 0.0, 0.25], [0.45, 0.0, 0.25]])  # forearm 3 cm above its top
-    high = low + np.array([0.0, 0.0, 0.10])
-    beside = low + np.array([0.0, 0.20, 0.0])
-    assert arm_hits(low, hm, CFG) is not None
-    assert arm_hits(high, hm, CFG) is None
-    assert arm_hits(beside, hm, CFG) is None
+    over = _slab(0.15, 0.30, -0.02, 0.02, 0.25)
+    low = over - np.array([0.0, 0.0, 0.04])
+    beside = low + np.array([0.0, 0.06, 0.0])
+    parts = [("Link3", len(over))]
+    assert arm_hits(over, parts, hm, CFG) is None
+    assert arm_hits(low, parts, hm, CFG) == "the arm (Link3) would touch a surface 22.0 cm high"
+    assert arm_hits(beside, parts, hm, CFG) is None
+    # the first link (in order) whose points are under a surface is the one named
+    both = np.concatenate([over, low])
+    assert "(Link4)" in str(arm_hits(both, [("Link3", len(over)), ("Link4", len(low))], hm, CFG))
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -133,18 +144,19 @@ def test_first_hit_of_many_poses_is_the_pose_by_pose_answer(seed: int) -> None:
     clutter = np.concatenate([block(*sorted(rng.uniform(0.2, 0.6, 2)), *sorted(rng.uniform(-0.2, 0.2, 2)),
                                     float(rng.uniform(0.02, 0.30))) for _ in range(4)])
     hm = HeightMap(clutter, CFG.cell, 0.0)
-    answers = set()
+    parts = [("Link3", 30), ("Link4", 12), ("Link5", 8)]
+    answers: set[str] = set()
     for boxes in (PANDA.clearance_boxes, hand_spec("robotiq_2f85").clearance_boxes):
         for _ in range(25):
             c = int(rng.integers(1, 10))
             tcp = np.column_stack([rng.uniform(0.2, 0.6, c), rng.uniform(-0.2, 0.2, c), rng.uniform(0.0, 0.4, c)])
             yaws = [float(y) for y in rng.uniform(-math.pi, math.pi, c)]
-            joints = tcp[:, None, :] + rng.uniform(-0.15, 0.15, (c, 5, 3)) + np.array([0.0, 0.0, 0.2])
+            arm = tcp[:, None, :] + rng.uniform(-0.15, 0.15, (c, 50, 3)) + np.array([0.0, 0.0, 0.2])
             expected = next((why for i in range(c) if (why := hand_hits(tcp[i], yaws[i], boxes, hm, CFG)
-                                                       or arm_hits(joints[i], hm, CFG)) is not None), None)
-            assert first_hit(tcp, yaws, joints, boxes, hm, CFG) == expected
-            answers.add(expected is None)
-    assert answers == {True, False}  # both clear and blocked approaches were compared
+                                                       or arm_hits(arm[i], parts, hm, CFG)) is not None), None)
+            assert first_hit(tcp, yaws, arm, parts, boxes, hm, CFG) == expected
+            answers.add("clear" if expected is None else "arm" if "arm" in expected else "hand")
+    assert answers == {"clear", "arm", "hand"}  # clear approaches and both kinds of block were compared
 
 
 def _link_boxes_in_tcp_frame(hand: str) -> list[FloatArray]:
@@ -236,8 +248,8 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
         lazy = LazyROI((0.0, 0.0, 1.0, 1.0), np.zeros(4, np.float32), list(fitting), [c.quality for c in fitting], heights)
         reachable = pick_reachable(env, dataclasses.replace(config, pick=on), [lazy])
         assert not any(reachable(c) for c in fitting)
-        # an empty spot of the table, away from everything, stays clear
-        free = TopDownGrasp(position=np.array([0.45, -0.25, table_z + 0.02]), yaw=0.0, width_m=0.05)
+        # an empty spot of the table whose arm path passes over nothing tall stays clear
+        free = TopDownGrasp(position=np.array([0.30, -0.32, table_z + 0.02]), yaw=0.0, width_m=0.05)
         assert heights.heights(free.position[None, :2], 0.12)[0] == table_z
         assert plan_pick(env, free, on, heights) is None
         # and without the check the pick shows why it misses: the hand rests on the cracker box
@@ -287,3 +299,39 @@ def test_the_preference_takes_the_first_clear_grasp_and_never_drops_a_region(mon
     assert usable(base) == 1 and usable(prefer) == 2  # the first clear one
     blocked.update({2, 3})
     assert usable(prefer) == 1  # none clear: the first that passes, not no grasp
+
+
+def test_the_forearm_over_a_tall_box_is_seen_and_physics_agrees() -> None:
+    """The README demo's scene (`cut`, seed 0): an empty spot of the table beside the cracker box
+    (nothing within 12 cm of it) is blocked by the *forearm*, which comes down on the 21 cm box
+    behind it; executed anyway, the TCP stops short and pybullet reports the box touching.
+
+    Capsules around the segments joining the joint frames (the first arm model) passed this
+    pick: they cut the corner the forearm turns to the wrist (``sim/arm_hull.py``)."""
+    import dataclasses
+
+    from craft_e.paths import SIM_DEV_LABELS
+    from craft_e.runtime.evaluation.sim_eval import load_sim_labels, make_episode_specs
+    from craft_e.runtime.sim.clearance import heights_excluding
+    from craft_e.runtime.sim.episode import Outcome, execute_pick, plan_pick
+    from craft_e.runtime.sim.pipeline import PipelineConfig
+    from craft_e.runtime.sim.surface import RaisedPoints
+
+    spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
+    config = PipelineConfig()
+    on = dataclasses.replace(config.pick, clearance=ClearanceConfig(enabled=True))
+    with SimEnv() as env:
+        env.reset(spec.scene)
+        env.robot.reset_home()
+        obs = env.capture()
+        table_z = env.scene.layout.table_z
+        raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
+        heights = heights_excluding(raised, np.zeros(obs.depth.shape, dtype=bool), table_z, on.clearance)
+        spot = TopDownGrasp(position=np.array([0.45, -0.25, table_z + 0.02]), yaw=0.0, width_m=0.05)
+        assert heights.heights(spot.position[None, :2], 0.12)[0] == table_z
+        why = plan_pick(env, spot, on, heights)
+        assert why is not None and why.startswith("approach blocked: the arm (Link3)"), why
+        done = execute_pick(env, spot, env.scene.target.body_id, config.pick)
+        assert done.outcome is Outcome.MISSED
+        assert done.descent_gap is not None and done.descent_gap > 0.02
+        assert done.touching == ("cracker_box",)

@@ -14,8 +14,11 @@ sees; this is that check, on the same overhead frame the ROIs came from:
   ``finger_check``'s business (a first version that counted the target too rejected half of all
   targets, whose grasped point is lower than other parts of them under the 21 cm hand, while
   physics takes most of those grasps fine);
-* the **arm** as capsules around the segments joining the joint frames from the elbow to the
-  flange (radius ``arm_radius``).
+* the **arm** as points on the convex hull of each link's mesh from the upper arm to the flange
+  (``arm_hull.py``: what pybullet collides), moved with the links' frames; a point collides if
+  a surface within ``arm_spacing`` of it rises above it. (Capsules around the segments joining
+  the joint frames, the first model, cut the corner the forearm turns to the wrist and missed a
+  forearm coming down on a tall neighbour: ``arm_hull.py``.)
 
 ``obstructed`` checks the pre-grasp, the grasp and the joint path from the arm's current posture
 to the pre-grasp, as ``execute_pick`` plays them. Nothing here uses the simulator's knowledge of
@@ -25,7 +28,6 @@ the objects: only depth pixels and the robot's own geometry.
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -73,8 +75,10 @@ class ClearanceConfig:
     # no pick (docs/results/sim_execution.md).
     relocate: bool = True
     cell: float = 0.005  # m: height-map resolution
-    sample_step: float = 0.01  # m between points sampled on hand boxes and arm segments
-    arm_radius: float = 0.05  # m: the CR3 forearm and wrist links are ~9 cm thick
+    sample_step: float = 0.01  # m between points sampled on hand boxes
+    # m between points sampled on the arm links' hulls; a surface within this distance
+    # (horizontally) of a point counts as under it
+    arm_spacing: float = 0.01
     # m: surfaces this close below a box's bottom count as touching; negative: surfaces up to
     # this far above it do not (the hand would come down that much short of its planned depth,
     # which is harmless). When the finger tips were lowered from 4 to 2 mm above the table
@@ -82,7 +86,8 @@ class ClearanceConfig:
     # demo's knife without a clear spot for relocation (docs/results/sim_execution.md).
     margin: float = -0.002
     path_samples: int = 8  # configurations checked on the joint path to the pre-grasp
-    arm_joints: tuple[str, ...] = ("joint3", "joint4", "joint5", "joint6", "flange_to_hand")
+    # the arm links checked (the hand is the boxes): the upper arm, forearm and the wrist links
+    arm_links: tuple[str, ...] = ("Link2", "Link3", "Link4", "Link5", "Link6")
 
 
 class HeightMap:
@@ -173,34 +178,28 @@ def hand_hits(
     return None
 
 
-def _segment_points(a: FloatArray, b: FloatArray, step: float) -> FloatArray:
-    """``[n, 3]`` points from ``a`` to ``b``, both ends included, at most ``step`` apart."""
-    n = max(2, math.ceil(float(np.linalg.norm(b - a)) / step) + 1)
-    out: FloatArray = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
-    return out
-
-
 def _hand_message(box: HandBox, highest: float, bottom: float) -> str:
     part = "a finger" if box.mirrored else "the hand"
     return f"{part} would touch a surface {100 * (highest - bottom):.1f} cm above its bottom"
 
 
-def _arm_message(height: float) -> str:
-    return f"the arm would touch a surface {100 * height:.1f} cm high"
+def _arm_message(link: str, height: float) -> str:
+    return f"the arm ({link}) would touch a surface {100 * height:.1f} cm high"
 
 
 def first_hit(
-    tcp_xyz: FloatArray, yaws: Sequence[float], joint_xyz: FloatArray, boxes: Sequence[HandBox],
-    obstacles: HeightMap, cfg: ClearanceConfig,
+    tcp_xyz: FloatArray, yaws: Sequence[float], arm_points: FloatArray, arm_parts: Sequence[tuple[str, int]],
+    boxes: Sequence[HandBox], obstacles: HeightMap, cfg: ClearanceConfig,
 ) -> str | None:
     """What the first of several poses would touch: ``hand_hits`` then ``arm_hits`` of each pose
-    in order (TCPs ``[C, 3]``, closing axes ``[C]``, joint positions ``[C, k, 3]``), the same
-    answer, to the character, as calling them pose by pose (``tests/test_clearance.py``).
+    in order (TCPs ``[C, 3]``, closing axes ``[C]``, the arm links' hull points ``[C, N, 3]``,
+    link by link as ``arm_parts`` (name, count) says), the same answer, to the character, as
+    calling them pose by pose (``tests/test_clearance.py``).
 
-    Why: a pick's approach is checked at ~9 poses, each with a handful of boxes and arm segments,
-    and each of those was a height-map lookup of a few dozen points: numpy's per-call overhead,
-    not arithmetic, was most of the chosen pick's check on the robot's path. Here every box's
-    points at every pose are one lookup, and every arm segment of every pose another: the same
+    Why: a pick's approach is checked at ~9 poses, each with a handful of boxes and arm links,
+    and each of those was a height-map lookup of its own: numpy's per-call overhead, not
+    arithmetic, was most of the chosen pick's check on the robot's path. Here every box's
+    points at every pose are one lookup, and every arm point of every pose another: the same
     elementwise arithmetic on the same points, so the same heights and the same verdict."""
     c = len(yaws)
     if c == 0:
@@ -214,29 +213,36 @@ def first_hit(
         xy = tcp[:, None, :2] + local[None, :, :1] * across[:, None, :] + local[None, :, 1:] * closing[:, None, :]
         seen = obstacles.heights(xy.reshape(-1, 2)).reshape(c, len(local))
         hand_seen.append((seen, tcp[:, 2] + box.z_lo))
-    joints = np.asarray(joint_xyz, dtype=np.float64)
-    segments: list[FloatArray] = []  # [n, 3] points of each pose's segments, pose-major
-    for pose_joints in joints:
-        segments.extend(_segment_points(a, b, cfg.sample_step) for a, b in itertools.pairwise(pose_joints))
-    arm_seen = obstacles.heights(np.concatenate(segments)[:, :2], cfg.arm_radius) if segments else np.zeros(0)
-    per_pose = len(segments) // c
-    bounds = np.cumsum([0] + [len(seg) for seg in segments])
+    arm = np.asarray(arm_points, dtype=np.float64)
+    arm_seen = obstacles.heights(arm[:, :, :2].reshape(-1, 2), cfg.arm_spacing).reshape(arm.shape[:2])
+    arm_over = arm_seen - arm[:, :, 2]  # how far a surface rises above each point
     for i in range(c):
         for box, (seen, bottom) in zip(boxes, hand_seen, strict=True):
             if np.any(seen[i] > bottom[i] - cfg.margin):
                 return _hand_message(box, float(seen[i].max()), float(bottom[i]))
-        for k in range(i * per_pose, (i + 1) * per_pose):
-            pts, seen_k = segments[k], arm_seen[bounds[k]:bounds[k + 1]]
-            if np.any(seen_k > pts[:, 2] - cfg.arm_radius):
-                return _arm_message(float(seen_k[int(np.argmax(seen_k - pts[:, 2]))]))
+        why = _arm_verdict(arm_over[i], arm_seen[i], arm_parts, cfg)
+        if why is not None:
+            return why
     return None
 
 
-def arm_hits(joint_xyz: FloatArray, obstacles: HeightMap, cfg: ClearanceConfig) -> str | None:
-    """Would capsules around the segments joining ``joint_xyz`` ``[k, 3]`` touch a surface?"""
-    for a, b in itertools.pairwise(joint_xyz):
-        pts = _segment_points(a, b, cfg.sample_step)  # [n, 3]
-        seen = obstacles.heights(pts[:, :2], cfg.arm_radius)
-        if np.any(seen > pts[:, 2] - cfg.arm_radius):
-            return _arm_message(float(seen[int(np.argmax(seen - pts[:, 2]))]))
+def _arm_verdict(over: FloatArray, seen: FloatArray, parts: Sequence[tuple[str, int]],
+                 cfg: ClearanceConfig) -> str | None:
+    """The first link (in ``parts`` order) one of whose points has a surface rising more than
+    ``-cfg.margin`` above it, with the highest such surface under that link."""
+    start = 0
+    for name, count in parts:
+        part_over = over[start:start + count]
+        if np.any(part_over > -cfg.margin):
+            return _arm_message(name, float(seen[start:start + count][part_over > -cfg.margin].max()))
+        start += count
     return None
+
+
+def arm_hits(points: FloatArray, parts: Sequence[tuple[str, int]], obstacles: HeightMap,
+             cfg: ClearanceConfig) -> str | None:
+    """Would the arm links, sampled at ``points`` ``[N, 3]`` (link by link as ``parts`` says,
+    ``arm_hull.hull_points_world``), touch a surface seen under them?"""
+    pts = np.asarray(points, dtype=np.float64)
+    seen = obstacles.heights(pts[:, :2], cfg.arm_spacing)
+    return _arm_verdict(seen - pts[:, 2], seen, parts, cfg)

@@ -23,6 +23,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from ..grasp.geometry import TopDownGrasp
+from .arm_hull import hull_points_world, link_hulls
 from .clearance import ClearanceConfig, HeightMap, first_hit
 from .env import EnvConfig, PhysicsConfig, SimEnv
 from .fingers import FingerGeometry
@@ -275,13 +276,15 @@ def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: Clearanc
     """Would the approach touch what the depth camera sees? The joint path from the arm's
     current posture to the pre-grasp (arm and hand), then the descent's end (the grasp)."""
     boxes = robot.gripper.hand.clearance_boxes
+    hulls = link_hulls(robot.urdf_path, cfg.arm_links, cfg.arm_spacing)
     start, pre = robot.joint_positions(), plan.pre.q
     path = [start + t * (pre - start) for t in np.linspace(0.0, 1.0, cfg.path_samples + 1)[1:]]
     poses = [*path, plan.descent[-1].q]
-    walked = [robot.forward_and_joints(q, cfg.arm_joints) for q in poses]  # one chain walk per pose
+    walked = [robot.forward_and_frames(q) for q in poses]  # one chain walk per pose
+    arm = np.array([np.concatenate(hull_points_world(hulls, frames, robot.base_position)) for _, frames in walked])
     # the poses in order, hand before arm: hand_hits / arm_hits pose by pose, in one lookup each
-    why = first_hit(np.array([t.position for t, _ in walked]), [t.yaw for t, _ in walked],
-                    np.array([joints for _, joints in walked]), boxes, obstacles, cfg)
+    why = first_hit(np.array([t.position for t, _ in walked]), [t.yaw for t, _ in walked], arm,
+                    [(h.link, len(h.points)) for h in hulls], boxes, obstacles, cfg)
     return None if why is None else f"approach blocked: {why}"
 
 

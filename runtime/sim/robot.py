@@ -21,7 +21,7 @@ import numpy.typing as npt
 import pybullet as p
 
 from .gripper import GripperConfig, ParallelGripper
-from .kinematics import SerialChain, load_chain
+from .kinematics import Mat4, SerialChain, load_chain
 from .local_ik import ChainIK
 from .robot_urdf import (
     HAND_JOINT,
@@ -150,6 +150,7 @@ class CR3Robot:
         gripper_config = gripper_config or GripperConfig()
         urdf = robot_urdf_path(gripper_config.hand)
         self.base_position = np.asarray(base_position, dtype=np.float64)
+        self.urdf_path = urdf  # the composed URDF: its link meshes are the clearance check's arm
         self.body_id = p.loadURDF(
             str(urdf),
             basePosition=list(self.base_position),
@@ -218,6 +219,12 @@ class CR3Robot:
         local, frames = self.chain.forward_and_frames(q)
         return (TcpPose(local[:3, 3] + self.base_position, local[:3, :3]),
                 np.array([frames[n][:3, 3] for n in names]) + self.base_position)
+
+    def forward_and_frames(self, q: FloatArray) -> tuple[TcpPose, dict[str, Mat4]]:
+        """``forward(q)`` and every joint's child frame (4x4, the chain's root frame: add
+        ``base_position`` for the world) from one walk of the model chain."""
+        local, frames = self.chain.forward_and_frames(q)
+        return TcpPose(local[:3, 3] + self.base_position, local[:3, :3]), frames
 
     def reset_home(self) -> None:
         """Teleport to the home configuration (setup only) and hold it."""
