@@ -113,6 +113,7 @@ class HeightMap:
             np.maximum.at(flat, ix * cols + iy, pts[:, 2])  # one flat index: ~5x faster than a pair
             z = flat.reshape(rows, cols)
         self.z = z
+        self.top = float(z.max())  # the highest surface anywhere (``floor_z`` when none)
         self._dilated: dict[int, FloatArray] = {0: z}
 
     def dilated(self, radius: float) -> FloatArray:
@@ -214,8 +215,15 @@ def first_hit(
         seen = obstacles.heights(xy.reshape(-1, 2)).reshape(c, len(local))
         hand_seen.append((seen, tcp[:, 2] + box.z_lo))
     arm = np.asarray(arm_points, dtype=np.float64)
-    arm_seen = obstacles.heights(arm[:, :, :2].reshape(-1, 2), cfg.arm_spacing).reshape(arm.shape[:2])
-    arm_over = arm_seen - arm[:, :, 2]  # how far a surface rises above each point
+    # how far a surface rises above each point; only points below the highest surface on the map
+    # (less the margin) can be touched, and most of the arm is above it: only those are looked up
+    arm_seen = np.full(arm.shape[:2], obstacles.floor_z)
+    arm_over = np.full(arm.shape[:2], -np.inf)
+    low = arm[:, :, 2] < obstacles.top - cfg.margin
+    if low.any():
+        seen_low = obstacles.heights(arm[low][:, :2], cfg.arm_spacing)
+        arm_seen[low] = seen_low
+        arm_over[low] = seen_low - arm[low][:, 2]
     for i in range(c):
         for box, (seen, bottom) in zip(boxes, hand_seen, strict=True):
             if np.any(seen[i] > bottom[i] - cfg.margin):
