@@ -8,7 +8,10 @@ check that the hand boxes the check uses cover the hand models pybullet actually
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import numpy.typing as npt
@@ -16,6 +19,7 @@ import pybullet as p
 import pytest
 
 from craft_e.runtime.grasp.geometry import TopDownGrasp
+from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.sim.clearance import (
     ClearanceConfig,
     HandBox,
@@ -25,6 +29,7 @@ from craft_e.runtime.sim.clearance import (
     hand_hits,
 )
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
+from craft_e.runtime.sim.episode import PickConfig
 from craft_e.runtime.sim.gripper import GripperConfig
 from craft_e.runtime.sim.hands import HAND_NAMES, PANDA, hand_spec
 from craft_e.runtime.sim.scene import SceneSpec
@@ -201,16 +206,27 @@ def test_clearance_boxes_cover_the_simulated_hand(hand: str) -> None:
             assert any(_inside(c, b, 0.005) for b in boxes), (hand, np.round(c, 3))
 
 
+@contextlib.contextmanager
+def _demo_scene() -> Iterator[tuple[SimEnv, Observation, PickConfig]]:
+    """The README demo's scene (`cut`, seed 0: sim-dev's `cut/knife/0`), the arm at home, its
+    overhead frame, and the default pick settings with the clearance check on as a filter."""
+    from craft_e.paths import SIM_DEV_LABELS
+    from craft_e.runtime.evaluation.sim_eval import load_sim_labels, make_episode_specs
+
+    spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
+    on = dataclasses.replace(PickConfig(), clearance=ClearanceConfig(enabled=True))
+    with SimEnv() as env:
+        env.reset(spec.scene)
+        env.robot.reset_home()
+        yield env, env.capture(), on
+
+
 def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_the_check() -> None:
     """The README demo (`cut`, seed 0): the robot's own path, once without and once with the check.
 
     Without it, IK accepts the knife's best fitting grasp (and the hand later rests on the
     cracker box); with it, the overhead depth shows the box under the hand and every fitting
     grasp of the knife is refused, while a grasp elsewhere on the table stays allowed."""
-    import dataclasses
-
-    from craft_e.paths import SIM_DEV_LABELS
-    from craft_e.runtime.evaluation.sim_eval import load_sim_labels, make_episode_specs
     from craft_e.runtime.perception.segment import segment
     from craft_e.runtime.sim.choose import LazyROI, pick_reachable
     from craft_e.runtime.sim.clearance import heights_around
@@ -222,13 +238,8 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
     )
     from craft_e.runtime.sim.surface import RaisedPoints
 
-    spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
     config = PipelineConfig()
-    on = dataclasses.replace(config.pick, clearance=ClearanceConfig(enabled=True))
-    with SimEnv() as env:
-        env.reset(spec.scene)
-        env.robot.reset_home()
-        obs = env.capture()
+    with _demo_scene() as (env, obs, on):
         assert obs.seg is not None
         rois = segment(obs).rois
         knife = max(range(len(rois)), key=lambda i: int((rois[i].mask & (obs.seg == env.scene.target.body_id)).sum()))
@@ -308,22 +319,13 @@ def test_the_forearm_over_a_tall_box_is_seen_and_physics_agrees() -> None:
 
     Capsules around the segments joining the joint frames (the first arm model) passed this
     pick: they cut the corner the forearm turns to the wrist (``sim/arm_hull.py``)."""
-    import dataclasses
-
-    from craft_e.paths import SIM_DEV_LABELS
-    from craft_e.runtime.evaluation.sim_eval import load_sim_labels, make_episode_specs
     from craft_e.runtime.sim.clearance import heights_excluding
     from craft_e.runtime.sim.episode import Outcome, execute_pick, plan_pick
     from craft_e.runtime.sim.pipeline import PipelineConfig
     from craft_e.runtime.sim.surface import RaisedPoints
 
-    spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
     config = PipelineConfig()
-    on = dataclasses.replace(config.pick, clearance=ClearanceConfig(enabled=True))
-    with SimEnv() as env:
-        env.reset(spec.scene)
-        env.robot.reset_home()
-        obs = env.capture()
+    with _demo_scene() as (env, obs, on):
         table_z = env.scene.layout.table_z
         raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
         heights = heights_excluding(raised, np.zeros(obs.depth.shape, dtype=bool), table_z, on.clearance)
