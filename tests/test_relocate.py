@@ -18,7 +18,7 @@ from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.sim.clearance import ClearanceConfig, HeightMap, hand_hits
 from craft_e.runtime.sim.fingers import FingerGeometry, SurfacePoints, finger_check
 from craft_e.runtime.sim.hands import PANDA
-from craft_e.runtime.sim.relocate import RelocateConfig, relocate_if_blocked, relocations
+from craft_e.runtime.sim.relocate import RelocateConfig, nudged, relocate_if_blocked, relocations
 
 FloatArray = npt.NDArray[np.float64]
 CFG = ClearanceConfig()
@@ -116,7 +116,36 @@ def test_the_next_network_grasp_is_tried_when_the_first_has_no_clear_spot_nearby
     assert float(result.pose.position[1]) > 0.05
 
 
-@pytest.mark.parametrize("bad", [{"turns_deg": (90.0,)}, {"shifts": (0.0,)}, {"min_footing_points": 0}])
+def test_nudges_move_along_the_closing_axis_nearest_first_and_stay_on_the_object() -> None:
+    """The knife lies along y, the grasp closes along x: nudges go to x = +-1 cm (each also
+    turned), and +-2 cm, 1.2 cm from the 1.6 cm knife's nearest points, is off it."""
+    spots = list(nudged(grasp_at(0.0), KNIFE, RelocateConfig()))
+    xs = [round(float(g.position[0]), 3) for g in spots]
+    assert xs == [0.01] * 5 + [-0.01] * 5
+    assert [round(math.degrees(g.yaw)) for g in spots[:5]] == [0, 15, -15, 30, -30]
+    assert all(abs(float(g.position[1])) < 1e-9 and g.position[2] == KNIFE_TOP for g in spots)
+    assert list(nudged(grasp_at(0.0), np.zeros((0, 3)), RelocateConfig())) == []
+
+
+def test_a_nudge_is_the_last_resort_and_clears_a_hand_that_just_reaches_a_wall() -> None:
+    """A wall along the whole knife whose edge the open hand's body reaches by 4 mm: no slide
+    along the knife and no turn (turns off here) clears it, a 1 cm nudge away from it does."""
+    reach = max(b.y_hi for b in PANDA.clearance_boxes)
+    wall = block(reach - 0.004, 0.30, -0.20, 0.20, 0.21)
+    heights = HeightMap(wall, CFG.cell, 0.0)
+    blocked = grasp_at(0.0)
+    assert problems(blocked, heights)[1] is not None
+    no_nudge = RelocateConfig(turns_deg=(), nudges=())
+    assert not relocate_if_blocked(blocked, [grasp_at(0.05)], KNIFE, heights, problems, tip_z, FINGERS, no_nudge).moved
+    result = relocate_if_blocked(blocked, [grasp_at(0.05)], KNIFE, heights, problems, tip_z, FINGERS,
+                                 RelocateConfig(turns_deg=()))
+    assert result.moved and "network grasp" not in result.detail and "moved 1.0 cm" in result.detail
+    assert float(result.pose.position[0]) == pytest.approx(-0.01)
+    assert problems(result.pose, heights) == (None, None)
+
+
+@pytest.mark.parametrize("bad", [{"turns_deg": (90.0,)}, {"shifts": (0.0,)}, {"nudges": (-0.01,)},
+                                 {"min_footing_points": 0}])
 def test_config_rejects_values_that_make_no_sense(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):
         RelocateConfig(**bad)  # type: ignore[arg-type]
