@@ -89,7 +89,7 @@ def test_into_limits_bit_for_bit() -> None:
 
 def test_forward_and_frames_is_one_walk_of_forward_and_frames(chain: SerialChain) -> None:
     """The clearance check walks the chain once per pose for the TCP and the joint frames
-    (``CR3Robot.forward_and_joints``): the same matrices as ``forward`` and ``frames`` apart."""
+    (``CR3Robot.forward_and_frames``): the same matrices as ``forward`` and ``frames`` apart."""
     rng = np.random.default_rng(2)
     for _ in range(200):
         q = rng.uniform(-math.pi, math.pi, 6)

@@ -208,18 +208,6 @@ class CR3Robot:
         local = self.chain.forward(q)
         return TcpPose(local[:3, 3] + self.base_position, local[:3, :3])
 
-    def joint_points(self, q: FloatArray, names: Sequence[str]) -> FloatArray:
-        """World positions ``[k, 3]`` of the named joints' frames for configuration ``q`` (model
-        only, like ``forward``)."""
-        frames = self.chain.frames(q)
-        return np.array([frames[n][:3, 3] for n in names]) + self.base_position
-
-    def forward_and_joints(self, q: FloatArray, names: Sequence[str]) -> tuple[TcpPose, FloatArray]:
-        """``forward(q)`` and ``joint_points(q, names)`` from one walk of the model chain."""
-        local, frames = self.chain.forward_and_frames(q)
-        return (TcpPose(local[:3, 3] + self.base_position, local[:3, :3]),
-                np.array([frames[n][:3, 3] for n in names]) + self.base_position)
-
     def forward_and_frames(self, q: FloatArray) -> tuple[TcpPose, dict[str, Mat4]]:
         """``forward(q)`` and every joint's child frame (4x4, the chain's root frame: add
         ``base_position`` for the world) from one walk of the model chain."""
