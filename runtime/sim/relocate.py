@@ -67,12 +67,24 @@ class RelocateConfig:
             raise ValueError("footing_radius must be > 0 and min_footing_points >= 1")
 
 
+def _turns(cfg: RelocateConfig) -> list[float]:
+    """Yaw offsets (radians) tried at every spot: none first, then each turn, each sign."""
+    return [0.0] + [s * math.radians(t) for t in cfg.turns_deg for s in (1.0, -1.0)]
+
+
+def _footing(moved: FloatArray, pts: FloatArray, cfg: RelocateConfig) -> FloatArray | None:
+    """The object points carrying a centre moved to ``moved`` (within ``footing_radius``), or
+    None when there are too few: the centre is off the object."""
+    near = pts[np.linalg.norm(pts[:, :2] - moved[:2], axis=1) <= cfg.footing_radius]
+    return near if len(near) >= cfg.min_footing_points else None
+
+
 def relocations(pose: TopDownGrasp, material: FloatArray, cfg: RelocateConfig) -> Iterator[TopDownGrasp]:
     """Candidate spots, nearest first: turns about the centre, then every slide along the object
     (its turns right after it); only spots with object points under the centre, at their top."""
     centre = np.asarray(pose.position, dtype=np.float64)
     along = np.array([-math.sin(pose.yaw), math.cos(pose.yaw), 0.0])  # across the closing axis
-    yaws = [0.0] + [s * math.radians(t) for t in cfg.turns_deg for s in (1.0, -1.0)]
+    yaws = _turns(cfg)
     pts = np.asarray(material, dtype=np.float64)
     for yaw in yaws[1:]:
         yield TopDownGrasp(centre.copy(), wrap_half_pi(pose.yaw + yaw), pose.width_m)
@@ -80,8 +92,8 @@ def relocations(pose: TopDownGrasp, material: FloatArray, cfg: RelocateConfig) -
         moved = centre + shift * along
         if len(pts) == 0:
             return
-        near = pts[np.linalg.norm(pts[:, :2] - moved[:2], axis=1) <= cfg.footing_radius]
-        if len(near) < cfg.min_footing_points:
+        near = _footing(moved, pts, cfg)
+        if near is None:
             continue
         if cfg.interior:
             side = (near[:, :2] - moved[:2]) @ along[:2]
@@ -97,17 +109,16 @@ def nudged(pose: TopDownGrasp, material: FloatArray, cfg: RelocateConfig) -> Ite
     turned as ``relocations`` turns; only spots with object points under the centre, at their top."""
     centre = np.asarray(pose.position, dtype=np.float64)
     closing = np.array([math.cos(pose.yaw), math.sin(pose.yaw), 0.0])
-    yaws = [0.0] + [s * math.radians(t) for t in cfg.turns_deg for s in (1.0, -1.0)]
     pts = np.asarray(material, dtype=np.float64)
     if len(pts) == 0:
         return
     for shift in (s * d for d in cfg.nudges for s in (1.0, -1.0)):
         moved = centre + shift * closing
-        near = pts[np.linalg.norm(pts[:, :2] - moved[:2], axis=1) <= cfg.footing_radius]
-        if len(near) < cfg.min_footing_points:
+        near = _footing(moved, pts, cfg)
+        if near is None:
             continue
         moved[2] = float(near[:, 2].max())
-        for yaw in yaws:
+        for yaw in _turns(cfg):
             yield TopDownGrasp(moved.copy(), wrap_half_pi(pose.yaw + yaw), pose.width_m)
 
 
