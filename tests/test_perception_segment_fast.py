@@ -1,7 +1,7 @@
 """The segmenter's faster parts give the same pixels and numbers as the plain versions.
 
 Why: ``segment`` was sped up (np.cross written out in the RANSAC loop, the colour cue by
-per-channel gathers and a lookup-table distance, the 3x3 opening by shifted slices, ROI
+per-channel gathers and a per-channel int32 distance, the 3x3 opening by shifted slices, ROI
 geometry scanned inside the component's box). Each must equal the straightforward code it
 replaced exactly (bit for bit, pixel for pixel), or the ROIs, and every result built on them,
 would move. The references below are the replaced implementations.
@@ -20,6 +20,7 @@ from craft_e.runtime.perception.segment import (
     SegmentConfig,
     _colour_foreground,
     _doubled_median,
+    _doubled_sq_distance,
     open_3x3,
 )
 
@@ -105,3 +106,18 @@ def test_doubled_median_is_twice_numpy_median(n: int) -> None:
     rng = np.random.default_rng(n)
     for values in (rng.integers(0, 256, n, dtype=np.uint8), (rng.random(n) ** 4 * 255).astype(np.uint8)):
         assert _doubled_median(values, n) == int(2 * np.median(values.astype(np.float64)))
+
+
+def test_doubled_sq_distance_is_exact_at_the_extremes() -> None:
+    """Every channel value against doubled medians from 0 to 510 (odd ones too: half-integer
+    medians), equal to the float64 formula; the largest, 3 x 510^2, still fits int32."""
+    values = np.arange(256, dtype=np.uint8)
+    rgb = np.stack(np.broadcast_arrays(values[:, None], values[::-1][:, None], values[:, None] // 2), -1)
+    rgb = np.ascontiguousarray(np.broadcast_to(rgb, (256, 3, 3)))  # [256, 3, 3]
+    for median2 in ([0, 0, 0], [510, 510, 510], [255, 1, 509], [301, 290, 270]):
+        m = np.array(median2, dtype=np.int64)
+        got = _doubled_sq_distance(rgb, m)
+        want = (((2.0 * rgb.astype(np.float64) - m) ** 2).sum(axis=-1))
+        assert got.dtype == np.int32 and np.array_equal(got, want.astype(np.int64))
+    full = _doubled_sq_distance(np.zeros((1, 1, 3), np.uint8), np.array([510, 510, 510]))
+    assert int(full[0, 0]) == 3 * 510**2

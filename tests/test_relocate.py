@@ -97,6 +97,30 @@ def test_a_blocked_grasp_moves_to_the_first_clear_spot_and_a_clear_one_stays() -
     assert kept.pose is clear and not kept.moved and kept.detail == ""
 
 
+def test_spot_problems_answer_for_the_spots_and_problems_for_the_chosen_grasp() -> None:
+    """``spot_problems`` (the staged check, ``pick_problems(approach_first=True)``) is asked about
+    every spot tried and never about the chosen grasp, whose blocked-or-clear answer (and the
+    message the detail carries) stays the whole plan's; the spot taken is the same."""
+    box = block(0.05, 0.12, -0.10, -0.04, 0.21)
+    heights = HeightMap(box, CFG.cell, 0.0)
+    blocked = grasp_at(-0.05)
+    asked: list[TopDownGrasp] = []
+
+    def staged(g: TopDownGrasp, h: HeightMap) -> tuple[str | None, str | None]:
+        asked.append(g)
+        return problems(g, h)
+
+    plain = relocate_if_blocked(blocked, [], KNIFE, heights, problems, tip_z, FINGERS, RelocateConfig())
+    result = relocate_if_blocked(blocked, [], KNIFE, heights, problems, tip_z, FINGERS, RelocateConfig(), staged)
+    assert result.moved and result.detail == plain.detail and result.pose.yaw == plain.pose.yaw
+    assert np.array_equal(result.pose.position, plain.pose.position)
+    assert asked and all(g is not blocked for g in asked) and asked[-1] is result.pose
+    asked.clear()
+    clear = grasp_at(0.06)
+    assert not relocate_if_blocked(clear, [], KNIFE, heights, problems, tip_z, FINGERS, RelocateConfig(), staged).moved
+    assert asked == []  # a clear grasp tries no spot
+
+
 def test_with_no_clear_spot_the_grasp_is_kept_and_the_detail_says_so() -> None:
     wall = block(0.03, 0.12, -0.20, 0.20, 0.21)  # beside the whole knife, closer than the hand reaches
     heights = HeightMap(wall, CFG.cell, 0.0)

@@ -157,18 +157,32 @@ def release_spots(
     return [(zone_xy[0] - (c * dx - s * dy), zone_xy[1] - (s * dx + c * dy)), *spots]
 
 
+@dataclass(frozen=True)
+class _Approach:
+    """The first stage of a pick's plan: the pre-grasp and the straight descent to the grasp,
+    all the approach check (``obstructed``) reads. ``x``, ``y``, ``yaw``: the grasp's spot
+    and the closing axis the hand keeps (``CR3Robot.nearest_yaw`` of the arm's posture then)."""
+
+    pre: IKSolution
+    descent: list[IKSolution]
+    grasp_z: float
+    x: float
+    y: float
+    yaw: float
+
+
 def _plan(
     robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig, rise: float = 0.0,
     object_xy: tuple[float, float] | None = None,
 ) -> _Plan | str:
-    """All waypoints of the pick, or a string saying which one is unreachable.
+    """All waypoints of the pick, or a string saying which one is unreachable: the approach
+    (``_approach``), then the rest (``_complete``)."""
+    approach = _approach(robot, scene, grasp, cfg)
+    return approach if isinstance(approach, str) else _complete(robot, scene, approach, cfg, rise, object_xy)
 
-    The lift rises by ``rise`` (to carry the object over the tallest thing on the table) when
-    that is reachable, else by ``cfg.lift_height``; feasibility is that of the plain lift, so
-    ``plan_pick`` answers the same with or without ``rise``. With ``object_xy`` (the object's
-    centre as seen) the release puts that centre over the zone when reachable
-    (``release_spots``), else the TCP over the zone as without it: feasibility is unchanged.
-    """
+
+def _approach(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -> _Approach | str:
+    """The pre-grasp and the descent of ``grasp``'s pick, or which one is unreachable."""
     table_z = scene.layout.table_z
     x, y = float(grasp.position[0]), float(grasp.position[1])
     grasp_z = max(
@@ -182,6 +196,22 @@ def _plan(
     descent = robot.plan_linear(pre.q, (x, y, grasp_z), yaw)
     if not _all_ok(robot, descent):
         return f"grasp pose ({x:.3f}, {y:.3f}, {grasp_z:.3f}) unreachable"
+    return _Approach(pre, descent, grasp_z, x, y, yaw)
+
+
+def _complete(
+    robot: CR3Robot, scene: Scene, approach: _Approach, cfg: PickConfig, rise: float = 0.0,
+    object_xy: tuple[float, float] | None = None,
+) -> _Plan | str:
+    """The lift, transport and release after ``approach``, or which one is unreachable.
+
+    The lift rises by ``rise`` (to carry the object over the tallest thing on the table) when
+    that is reachable, else by ``cfg.lift_height``; feasibility is that of the plain lift, so
+    ``plan_pick`` answers the same with or without ``rise``. With ``object_xy`` (the object's
+    centre as seen) the release puts that centre over the zone when reachable
+    (``release_spots``), else the TCP over the zone as without it: feasibility is unchanged.
+    """
+    x, y, yaw, grasp_z, descent = approach.x, approach.y, approach.yaw, approach.grasp_z, approach.descent
     lift: list[IKSolution] = []
     found = False
     for height in ([rise] if rise > cfg.lift_height else []) + [cfg.lift_height]:
@@ -203,7 +233,7 @@ def _plan(
     for drop_x, drop_y in release_spots(scene.layout.drop_zone.center, (x, y), yaw, drop_yaw, object_xy):
         placed = _place(robot, lift, float(lift_end[2]), (drop_x, drop_y), drop_yaw, release_z, cfg)
         if not isinstance(placed, str):
-            return _Plan(pre, descent, lift, placed[0], placed[1], grasp_z)
+            return _Plan(approach.pre, descent, lift, placed[0], placed[1], grasp_z)
         why = placed
     return why
 
@@ -245,13 +275,14 @@ def plan_pick(
     return unreachable or blocked
 
 
-#: plans already made, by grasp and arm posture (``pick_problems``' ``plans``)
-PlanCache = dict[tuple[bytes, float, float, bytes, int], "_Plan | str"]
+#: plans already made, by grasp and arm posture (``pick_problems``' ``plans``): the whole plan,
+#: why it is unreachable, or only its approach when the rest was not needed yet
+PlanCache = dict[tuple[bytes, float, float, bytes, int], "_Plan | _Approach | str"]
 
 
 def pick_problems(
     env: SimEnv, grasp: TopDownGrasp, config: PickConfig, obstacles: HeightMap | None,
-    plans: PlanCache | None = None,
+    plans: PlanCache | None = None, *, approach_first: bool = False,
 ) -> tuple[str | None, str | None]:
     """(why the pick is unreachable, what its approach would touch among ``obstacles``), from one
     plan; the second is None when the pick is unreachable or no ``obstacles`` are given.
@@ -259,32 +290,66 @@ def pick_problems(
 
     ``plans``: reuse a plan made before for the same grasp from the same arm posture with the
     same settings (the robot's path plans the chosen grasp's IK, then checks its clearance for
-    relocation: one plan, not two). The plan is a function of exactly these inputs."""
+    relocation: one plan, not two). The plan is a function of exactly these inputs.
+
+    ``approach_first``: for a caller that only needs to know whether both answers are None (the
+    relocation search, ``relocate.relocate_if_blocked``): the approach is planned and checked
+    first, and when it is blocked, that is the answer, without planning the lift, transport and
+    release (about four fifths of a plan's IK waypoints); the first answer is then None even if
+    they are unreachable. Both answers are None exactly when they are without it."""
     key = (np.asarray(grasp.position, np.float64).tobytes(), float(grasp.yaw), float(grasp.width_m),
            env.robot.joint_positions().tobytes(), id(config))
-    plan = plans.get(key) if plans is not None else None
-    if plan is None:
-        plan = _plan(env.robot, env.scene, grasp, config)
-        if plans is not None:
-            plans[key] = plan
-    if isinstance(plan, str):
-        return plan, None
-    return None, None if obstacles is None else obstructed(env.robot, plan, obstacles, config.clearance)
+    made = plans.get(key) if plans is not None else None
+    if made is None:
+        made = _approach(env.robot, env.scene, grasp, config)
+    blocked: str | None = None
+    checked = False  # ``blocked`` already holds the approach check's answer
+    if isinstance(made, _Approach):
+        if approach_first and obstacles is not None:
+            blocked = obstructed(env.robot, made, obstacles, config.clearance, grasp_first=True)
+            checked = True
+            if blocked is not None:
+                if plans is not None:
+                    plans[key] = made
+                return None, blocked
+        made = _complete(env.robot, env.scene, made, config)
+    if plans is not None:
+        plans[key] = made
+    if isinstance(made, str):
+        return made, None
+    if obstacles is None:
+        return None, None
+    return None, blocked if checked else obstructed(env.robot, made, obstacles, config.clearance)
 
 
-def obstructed(robot: CR3Robot, plan: _Plan, obstacles: HeightMap, cfg: ClearanceConfig) -> str | None:
+def obstructed(
+    robot: CR3Robot, plan: _Plan | _Approach, obstacles: HeightMap, cfg: ClearanceConfig, *, grasp_first: bool = False,
+) -> str | None:
     """Would the approach touch what the depth camera sees? The joint path from the arm's
-    current posture to the pre-grasp (arm and hand), then the descent's end (the grasp)."""
+    current posture to the pre-grasp (arm and hand), then the descent's end (the grasp): the
+    first pose, in that order, that would touch, and what.
+
+    ``grasp_first``: for a caller that only asks *whether* the approach is clear (the relocation
+    search): the grasp pose, where a blocked spot is most often blocked, is checked alone
+    first, then the path (the same verdict; when the grasp pose is blocked, the message names
+    its contact even if the path touched something earlier)."""
     boxes = robot.gripper.hand.clearance_boxes
     hulls = link_hulls(robot.urdf_path, cfg.arm_links, cfg.arm_spacing)
     start, pre = robot.joint_positions(), plan.pre.q
     path = [start + t * (pre - start) for t in np.linspace(0.0, 1.0, cfg.path_samples + 1)[1:]]
     poses = [*path, plan.descent[-1].q]
-    walked = [robot.forward_and_frames(q) for q in poses]  # one chain walk per pose
-    arm = np.array([np.concatenate(hull_points_world(hulls, frames, robot.base_position)) for _, frames in walked])
-    # the poses in order, hand before arm: hand_hits / arm_hits pose by pose, in one lookup each
-    why = first_hit(np.array([t.position for t, _ in walked]), [t.yaw for t, _ in walked], arm,
-                    [(h.link, len(h.points)) for h in hulls], boxes, obstacles, cfg)
+    parts = [(h.link, len(h.points)) for h in hulls]
+
+    def check(qs: list[npt.NDArray[np.float64]]) -> str | None:
+        walked = [robot.forward_and_frames(q) for q in qs]  # one chain walk per pose
+        arm = np.array([np.concatenate(hull_points_world(hulls, frames, robot.base_position))
+                        for _, frames in walked])
+        # the poses in order, hand before arm: hand_hits / arm_hits pose by pose, in one lookup each
+        return first_hit(np.array([t.position for t, _ in walked]), [t.yaw for t, _ in walked], arm,
+                         parts, boxes, obstacles, cfg)
+
+    # with grasp_first, the path's first contact when the grasp pose is clear, as without it
+    why = (check(poses[-1:]) or check(poses[:-1])) if grasp_first else check(poses)
     return None if why is None else f"approach blocked: {why}"
 
 

@@ -993,7 +993,8 @@ def relocate_candidate(
     result = relocate_if_blocked(
         grasp.pose, others, material, heights,
         lambda g, h: pick_problems(env, g, config.pick, h, plans),
-        lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig())
+        lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig(),
+        lambda g, h: pick_problems(env, g, config.pick, h, plans, approach_first=True))
     if not result.moved:
         return grasp, result.detail
     try:

@@ -140,12 +140,17 @@ def relocate_if_blocked(
     tip_z_of: Callable[[TopDownGrasp], float],
     fingers: FingerGeometry,
     cfg: RelocateConfig,
+    spot_problems: Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]] | None = None,
 ) -> Relocation:
     """``pose`` if its approach is clear, else the first spot that fits the fingers and whose
     pick is reachable and clear (``problems``: ``episode.pick_problems`` bound to the env and pick
     settings), else ``pose`` unchanged (the detail says so). Spots, in order: ``relocations`` of
     ``pose``, then each of ``others`` (the region's next network grasps, best first; read only
-    this far, so the caller may compute them lazily) and its relocations."""
+    this far, so the caller may compute them lazily) and its relocations.
+
+    ``spot_problems``: ``problems`` for the spots, where only "both None" counts, so it may stop
+    at the first problem it finds (``pick_problems(approach_first=True)``: a blocked approach
+    without the rest of the plan); default ``problems``."""
     _, touched = problems(pose, heights)
     if touched is None:
         return Relocation(pose, False, "")
@@ -161,7 +166,7 @@ def relocate_if_blocked(
     for spot, source in spots():
         if not finger_check(surface, spot, tip_z_of(spot), fingers)[0]:
             continue
-        unreachable, blocked = problems(spot, heights)
+        unreachable, blocked = (spot_problems or problems)(spot, heights)
         if unreachable is None and blocked is None:
             shift = float(np.linalg.norm(np.asarray(spot.position[:2]) - np.asarray(pose.position[:2])))
             turn = math.degrees(wrap_half_pi(spot.yaw - pose.yaw))
