@@ -28,7 +28,10 @@ on the same scenes, with the networks the robot runs (their inference rewrites, 
 second, the robot's ``grasp_net`` stage came out 7, 16 and 23 ms/scene slower than the floor's
 grasp-network pass in three runs, and 5, 5 and 7 ms with the floor first (ad-hoc runs on this
 2-core host, 2026-12-04). Output: a per-stage table and, with ``--json OUT``,
-``{"robot_s_per_scene", "floor_s_per_scene", "ratio", "stages": {...}}``.
+``{"robot_s_per_scene", "floor_s_per_scene", "ratio", "stages": {...}}``, plus the slowest
+scene's robot total: the per-scene cost has a tail (a blocked approach's relocation search, the
+antipodal fallback) that the default six scenes barely sample; ``--scenes 35`` covers every
+sim-dev pair once.
 
 Run: ``.venv/bin/python benchmarks/bench_perception.py [--scenes 6] [--threads 2] [--json OUT]``.
 ``--threads`` (default 2: the robot's own two cores, issue 10's budget) sets the torch threads of
@@ -158,13 +161,15 @@ def main() -> None:
     stages = {k: 0.0 for k in ("segment", "grasp_net", "encode", "finger_checks", "ground_ik")}
     floor = {"grasp_net_frame": 0.0, "encode": 0.0}
     rois_total, plans, agree, eager_checks, worst_gap = 0, 0, 0, 0.0, 0.0
-    relocated, same_move = 0, 0
+    relocated, blocked, same_move = 0, 0, 0
+    scene_totals: list[tuple[float, str]] = []  # each scene's robot total, mean over its repeats
     timed_runs = 0  # robot first on even counts, floor first on odd: see the module docstring
     load = os.getloadavg()
     if args.threads > 1 and load[0] > 1.0:
         print(f"note: load average {load[0]:.1f} at the start: other jobs share the cores, so "
               f"{args.threads} torch threads contend; --threads 1 measures more reliably here")
     for spec in specs:
+        scene_total = 0.0
         with SimEnv() as env:
             env.reset(spec.scene)
             env.robot.reset_home()
@@ -198,6 +203,7 @@ def main() -> None:
                     picked, why = relocate_choice(env, cfg, frame, lazy[choice.grounding.chosen.index], picked,
                                                   made)
                     relocated += int(why.startswith("approach blocked") and "kept" not in why)
+                    blocked += int(why.startswith("approach blocked"))
                 timings["ground_ik"] = time.perf_counter() - t0
                 plans += choice.plans
                 chosen = choice.grounding.chosen
@@ -214,10 +220,12 @@ def main() -> None:
                     floor_net, floor_enc = _time_floor(cfg, obs, masks, crops, fast_enc, args.threads)
                 for k in stages:
                     stages[k] += timings.get(k, 0.0)
+                scene_total += sum(timings.get(k, 0.0) for k in stages) / args.repeats
                 floor["grasp_net_frame"] += floor_net
                 floor["encode"] += floor_enc
                 rois_total += len(lazy)
                 eager_checks += eager_t["grasp_checks"]
+        scene_totals.append((scene_total, spec.id))
     n = len(specs) * args.repeats
     load_after = os.getloadavg()
     per_stage = {k: v / n for k, v in stages.items()}
@@ -236,8 +244,11 @@ def main() -> None:
     print(f"IK plans per scene {plans / n:.2f}; robot choice = eager choice in {agree}/{n} (same ROI, same "
           f"peak pixel, angle/width/quality within {GRASP_TOL:g}; largest difference {worst_gap:.1e}); "
           f"eager grasp checks (IK of every ROI, the evaluation's path) {eager_checks / n:.3f} s/scene")
-    print(f"relocated (approach blocked, moved along the object): {relocated}/{n}; relocated grasp = the "
-          f"evaluation's in {same_move}/{n}")
+    print(f"approach blocked: {blocked}/{n}, relocated (moved along the object): {relocated}/{n}; relocated "
+          f"grasp = the evaluation's in {same_move}/{n}")
+    slowest, slowest_id = max(scene_totals)
+    print(f"slowest scene: {slowest_id}, robot total {slowest:.3f} s (a blocked approach's relocation search "
+          f"and the antipodal fallback are the tail: run more --scenes to see it)")
     if args.json is not None:
         args.json.write_text(json.dumps({
             "robot_s_per_scene": round(robot, 4), "floor_s_per_scene": round(floor_s, 4),
@@ -253,6 +264,8 @@ def main() -> None:
             "chosen_grasp_max_difference": worst_gap,
             "eager_grasp_checks_s_per_scene": round(eager_checks / n, 4),
             "relocated": f"{relocated}/{n}", "relocated_equals_eager": f"{same_move}/{n}",
+            "approach_blocked": f"{blocked}/{n}",
+            "slowest_scene": {"id": slowest_id, "robot_s": round(slowest, 4)},
         }, indent=1) + "\n")
 
 
