@@ -15,9 +15,9 @@ The stages are timed inside the robot's own path, ``sim.choose.perceive_for_pick
 
 Every scene is also run the evaluation's eager way (``perceive``: IK of every ROI's grasps, then
 ``Grounder.ground``, with the checkpoints' networks), untimed for the total: its choice must equal
-the robot's (counted: the same ROI and the same grasp rectangle, whose angle, width and quality
-may differ by float rounding, ``GRASP_TOL``, since the robot runs the networks' inference
-rewrites), and its checks' time is printed beside for reference.
+the robot's (counted: the same ROI and the same grasp rectangle, whose centre, angle, width and
+quality may differ by float rounding, ``GRASP_TOL``, since the robot runs the networks' inference
+rewrites; ``_rect_gap``), and its checks' time is printed beside for reference.
 
 The floor is the same grasp-network pass (``predict_frame`` on the same crop: pre-processing,
 network, smoothing) plus the same batched encoder pass on the same crops, measured in the same run
@@ -109,15 +109,19 @@ def _cpu_model() -> str:
 
 
 def _rect_gap(a: object, b: object) -> float:
-    """How far two chosen grasps differ: 0 for the same rectangle, inf for another centre pixel
-    (another peak) or no grasp on one side, else the largest difference of angle (rad), width,
-    length and quality (the robot's fused networks change these by float rounding only)."""
+    """How far two chosen grasps differ: 0 for the same rectangle, inf for another peak (centres
+    half a pixel or more apart) or no grasp on one side, else the largest difference of centre
+    (px), angle (rad), width, length and quality. The robot's fused networks change these by
+    float rounding only; a network grasp's centre is its peak pixel on both paths, while a
+    refined grasp's (``sim/refine.py``: a pose moved on the object, projected back) carries
+    that rounding too (~1e-5 px)."""
     if not (isinstance(a, GraspCandidate) and isinstance(b, GraspCandidate)):
         return 0.0 if a is None and b is None else math.inf
     ra, rb = a.rect, b.rect
-    if ra.center_xy != rb.center_xy:
+    centre = max(abs(ra.center_xy[0] - rb.center_xy[0]), abs(ra.center_xy[1] - rb.center_xy[1]))
+    if centre >= 0.5:
         return math.inf
-    return max(abs(ra.angle_rad - rb.angle_rad), abs(ra.width_px - rb.width_px),
+    return max(centre, abs(ra.angle_rad - rb.angle_rad), abs(ra.width_px - rb.width_px),
                abs(ra.length_px - rb.length_px), abs(ra.quality - rb.quality))
 
 
@@ -242,7 +246,7 @@ def main() -> None:
     print(f"| floor: the batched encoder pass | {floor['encode'] / n:.3f} | |")
     print(f"| **floor** | **{floor_s:.3f}** | |\nratio {robot / floor_s:.2f}")
     print(f"IK plans per scene {plans / n:.2f}; robot choice = eager choice in {agree}/{n} (same ROI, same "
-          f"peak pixel, angle/width/quality within {GRASP_TOL:g}; largest difference {worst_gap:.1e}); "
+          f"peak, centre/angle/width/quality within {GRASP_TOL:g}; largest difference {worst_gap:.1e}); "
           f"eager grasp checks (IK of every ROI, the evaluation's path) {eager_checks / n:.3f} s/scene")
     print(f"approach blocked: {blocked}/{n}, relocated (moved along the object): {relocated}/{n}; relocated "
           f"grasp = the evaluation's in {same_move}/{n}")
