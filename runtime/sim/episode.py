@@ -295,7 +295,7 @@ def pick_problems(
     ``approach_first``: for a caller that only needs to know whether both answers are None (the
     relocation search, ``relocate.relocate_if_blocked``): the approach is planned and checked
     first, and when it is blocked, that is the answer, without planning the lift, transport and
-    release (about four fifths of a plan's IK waypoints); the first answer is then None even if
+    release (most of a plan's IK waypoints: 86 % of the chosen picks' on sim-dev); the first answer is then None even if
     they are unreachable. Both answers are None exactly when they are without it."""
     key = (np.asarray(grasp.position, np.float64).tobytes(), float(grasp.yaw), float(grasp.width_m),
            env.robot.joint_positions().tobytes(), id(config))
@@ -330,8 +330,8 @@ def obstructed(
     first pose, in that order, that would touch, and what.
 
     ``grasp_first``: for a caller that only asks *whether* the approach is clear (the relocation
-    search): the grasp pose, where a blocked spot is most often blocked, is checked alone
-    first, then the path (the same verdict; when the grasp pose is blocked, the message names
+    search): the grasp pose is checked alone first (a spot blocked there needs no path check),
+    then the path (the same verdict; when the grasp pose is blocked, the message names
     its contact even if the path touched something earlier)."""
     boxes = robot.gripper.hand.clearance_boxes
     hulls = link_hulls(robot.urdf_path, cfg.arm_links, cfg.arm_spacing)
