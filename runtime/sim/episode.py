@@ -295,31 +295,27 @@ def pick_problems(
     ``approach_first``: for a caller that only needs to know whether both answers are None (the
     relocation search, ``relocate.relocate_if_blocked``): the approach is planned and checked
     first, and when it is blocked, that is the answer, without planning the lift, transport and
-    release (most of a plan's IK waypoints: 86 % of the chosen picks' on sim-dev); the first answer is then None even if
-    they are unreachable. Both answers are None exactly when they are without it."""
+    release (most of a plan's IK waypoints: 86 % of the chosen picks' on sim-dev); the first
+    answer is then None even if they are unreachable. Both answers are None exactly when they
+    are without it."""
     key = (np.asarray(grasp.position, np.float64).tobytes(), float(grasp.yaw), float(grasp.width_m),
            env.robot.joint_positions().tobytes(), id(config))
     made = plans.get(key) if plans is not None else None
     if made is None:
         made = _approach(env.robot, env.scene, grasp, config)
     blocked: str | None = None
-    checked = False  # ``blocked`` already holds the approach check's answer
-    if isinstance(made, _Approach):
-        if approach_first and obstacles is not None:
-            blocked = obstructed(env.robot, made, obstacles, config.clearance, grasp_first=True)
-            checked = True
-            if blocked is not None:
-                if plans is not None:
-                    plans[key] = made
-                return None, blocked
+    checked = False  # ``blocked`` holds the approach check's answer
+    if isinstance(made, _Approach) and approach_first and obstacles is not None:
+        blocked, checked = obstructed(env.robot, made, obstacles, config.clearance, grasp_first=True), True
+    if isinstance(made, _Approach) and blocked is None:
         made = _complete(env.robot, env.scene, made, config)
     if plans is not None:
-        plans[key] = made
+        plans[key] = made  # only the approach when it was blocked
     if isinstance(made, str):
         return made, None
-    if obstacles is None:
-        return None, None
-    return None, blocked if checked else obstructed(env.robot, made, obstacles, config.clearance)
+    if checked or obstacles is None:
+        return None, blocked
+    return None, obstructed(env.robot, made, obstacles, config.clearance)
 
 
 def obstructed(
