@@ -30,11 +30,11 @@ from craft_e.paths import SIM_DEV_LABELS, SIM_VAL_LABELS
 from craft_e.runtime.evaluation.parallel import ordered_map
 from craft_e.runtime.evaluation.sim_eval import (
     EpisodeSpec,
-    _run_one,
-    _worker_context,
     load_sim_labels,
     make_episode_specs,
+    run_one_episode,
     select_methods,
+    worker_context,
 )
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.sim.episode import sim_configs
@@ -112,8 +112,8 @@ def main() -> None:
         fallback = FallbackConfig(enabled=False) if scale is None else FallbackConfig(quality_scale=scale)
         config = PipelineConfig(pick=varied, fingers=fingers, fallback=fallback)
         # the evaluation's own worker set-up and episode runner (``craft eval sim``), CRAFT-E only
-        records = ordered_map(partial(_run_one, config, env_config, None), specs, jobs=args.jobs,
-                              build=partial(_worker_context, select_methods([METHOD]), 1, GroundingSettings()))
+        records = ordered_map(partial(run_one_episode, config, env_config, None), specs, jobs=args.jobs,
+                              build=partial(worker_context, select_methods([METHOD]), 1, GroundingSettings()))
         episodes = [_outcome(r) for r in records]
         counts = Counter(e["failure"] for e in episodes)
         runs.append({"setting": setting, "outcomes": dict(counts), "episodes": episodes})

@@ -21,6 +21,7 @@ from . import (
     eval_imagenet,
     eval_kb,
     eval_open_world,
+    eval_pickability,
     eval_recognition,
     eval_sim,
     eval_static,
@@ -53,6 +54,7 @@ eval_app.command("zhu")(eval_zhu.eval_zhu)
 eval_app.command("kb")(eval_kb.eval_kb)
 eval_app.command("open-world")(eval_open_world.eval_open_world)
 eval_app.command("recognition")(eval_recognition.eval_recognition)
+eval_app.command("pickability")(eval_pickability.eval_pickability)
 robustness_app.command("imagenet")(robustness.robustness_imagenet)
 sim_app.command("demo")(sim.demo)
 sim_app.command("collision-meshes")(sim.collision_meshes)

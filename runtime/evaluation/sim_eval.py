@@ -230,7 +230,9 @@ def settled_apart(spec: SceneSpec, env_config: EnvConfig, min_gap: float) -> boo
     return True
 
 
-def _rng(seed: int, verb: str, obj: str, layout: int) -> np.random.Generator:
+def episode_rng(seed: int, verb: str, obj: str, layout: int) -> np.random.Generator:
+    """The draws of one episode, from (seed, verb, object, layout) alone: a pair's scenes do not
+    change when other pairs are added or removed."""
     entropy = [seed, zlib.crc32(verb.encode()), zlib.crc32(obj.encode()), layout]
     return np.random.default_rng(np.random.SeedSequence(entropy))
 
@@ -257,7 +259,7 @@ def make_episode_specs(
     for pair in pairs:
         excluded = labels.affording[pair.verb]
         for layout in range(layouts):
-            rng = _rng(seed, pair.verb, pair.object, layout)
+            rng = episode_rng(seed, pair.verb, pair.object, layout)
             target = pair.assets[int(rng.integers(len(pair.assets)))]
             target_name = catalog[target].name
             pool = sorted(a for a in catalog if a not in excluded and catalog[a].name != target_name)
@@ -483,7 +485,7 @@ class SimReport:
 ProgressFn = Callable[[int, int, dict[str, Any]], None]
 
 
-def _worker_context(
+def worker_context(
     runnable_specs: Sequence[MethodSpec], threads: int, settings: GroundingSettings,
     classifier: str | None = None,
 ) -> tuple[dict[str, Grounder], ImageEncoder]:
@@ -495,7 +497,7 @@ def _worker_context(
     return build_grounders(runnable, settings, sim_vocabulary()), enc
 
 
-def _run_one(
+def run_one_episode(
     cfg: PipelineConfig, env_cfg: EnvConfig, retry: RetryConfig | None,
     ctx: tuple[dict[str, Grounder], ImageEncoder], spec: EpisodeSpec,
 ) -> dict[str, Any]:
@@ -556,8 +558,8 @@ def evaluate_sim(
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:
-        build = partial(_worker_context, [m for m, _ in runnable], cfg.torch_threads, settings, classifier)
-        for record in ordered_map(partial(_run_one, cfg, env_cfg, retry), specs, jobs=jobs, build=build,
+        build = partial(worker_context, [m for m, _ in runnable], cfg.torch_threads, settings, classifier)
+        for record in ordered_map(partial(run_one_episode, cfg, env_cfg, retry), specs, jobs=jobs, build=build,
                                   context=(grounders, enc)):
             records.append(record)
             if progress is not None:

@@ -454,7 +454,7 @@ def evaluate_static(
     from functools import partial
 
     from .parallel import ordered_map
-    from .sim_eval import _worker_context
+    from .sim_eval import worker_context
 
     bad = [b for b in backends if b not in GRASP_BACKENDS]
     if bad:
@@ -478,7 +478,7 @@ def evaluate_static(
     if jobs > 1 and encoder is not None:
         raise ValueError("jobs > 1 builds the default image encoder in every worker; pass encoder=None")
     run = partial(_static_record, backends, env_cfg, gt_config, threads, levels, setting_names, seed)
-    build = partial(_worker_context, [m for m, _ in runnable], threads, settings, classifier)
+    build = partial(worker_context, [m for m, _ in runnable], threads, settings, classifier)
     for record in ordered_map(run, specs if grounders else [], jobs=jobs, build=build, context=(grounders, enc)):
         episodes.append(record)
         if progress is not None:

@@ -1,0 +1,59 @@
+"""``craft eval pickability``: every testbed asset alone on the table, picked by the whole pipeline."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from . import episodes as ep
+from .common import fail
+
+
+def eval_pickability(
+    assets: Annotated[list[str] | None, typer.Option(
+        "--asset", help="An asset id of the sim catalogue (repeatable; default: all 74).")] = None,
+    grasp: Annotated[str, typer.Option(help="grconvnet | ggcnn | ggcnn2 | antipodal.")] = "grconvnet",
+    layouts: Annotated[int, typer.Option(min=1, help="Seeded poses per asset.")] = 3,
+    kb: ep.SceneKbOpt = None,
+    kb_dir: ep.SceneKbDirOpt = None,
+    json_out: ep.EpisodesJsonOpt = None,
+    markdown: ep.TablesOpt = None,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the poses.")] = 0,
+    threads: ep.SceneThreadsOpt = 1,
+    jobs: ep.JobsOpt = 1,
+    gripper: ep.GripperOpt = "panda",
+    wrist_look: ep.WristLookOpt = True,
+    refine_grasps: ep.RefineGraspsOpt = True,
+    grasp_fallback: ep.GraspFallbackOpt = True,
+    clearance: ep.ClearanceOpt = False,
+    relocate: ep.RelocateOpt = True,
+    fine_collision: ep.FineCollisionOpt = True,
+    landing_check: ep.LandingCheckOpt = True,
+) -> None:
+    """Each asset alone, picked as `craft eval sim` picks, choosing by E_grasp alone: what the pick loses."""
+    from ..evaluation.pickability import UnknownAssetError, evaluate_pickability, pickability_method
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.episode import sim_configs
+    from ..sim.fallback import FallbackConfig
+    from ..sim.pipeline import PipelineConfig
+    from ..sim.placement import PlacementError
+    from ..sim.refine import RefineConfig
+
+    if grasp == "oracle":
+        fail("--grasp oracle uses the simulator's ground truth: pickability measures the robot's own grasps; "
+             "choose grconvnet, ggcnn, ggcnn2 or antipodal")
+    try:
+        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
+                                                 landing_check, False, relocate)
+        config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick,  # type: ignore[arg-type]
+                                fingers=fingers, refine=RefineConfig(enabled=refine_grasps),
+                                fallback=FallbackConfig(enabled=grasp_fallback))
+    except ValueError as exc:
+        fail(str(exc))
+    method = pickability_method(kb, kb_dir)
+    ep.run_with_progress(
+        lambda bar: evaluate_pickability(assets or (), config=config, layouts=layouts, seed=seed,
+                                         env_config=env_config, method=method, progress=bar, jobs=jobs),
+        "episodes", "episodes", json_out, markdown,
+        (UnknownAssetError, PlacementError, SharedAssetsMissingError, FileNotFoundError))

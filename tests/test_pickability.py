@@ -1,0 +1,111 @@
+"""``craft eval pickability``: each asset alone, picked by the whole pipeline; its scenes, its
+report and its errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+from craft_e.runtime.cli.main import app
+from craft_e.runtime.evaluation.pickability import (
+    METHOD,
+    PickabilityReport,
+    UnknownAssetError,
+    check_assets,
+    pickability_method,
+    pickability_specs,
+)
+from craft_e.runtime.sim.assets import object_catalog
+
+
+def test_assets_default_to_the_whole_catalogue_and_unknown_ones_are_named() -> None:
+    assert check_assets([]) == sorted(object_catalog()) and len(check_assets([])) == 74
+    assert check_assets(["softball", "banana", "softball"]) == ["softball", "banana"]
+    with pytest.raises(UnknownAssetError, match="'bananna'"):
+        check_assets(["banana", "bananna"])
+
+
+def test_scenes_hold_one_object_and_do_not_depend_on_the_other_assets() -> None:
+    both = pickability_specs(["softball", "banana"], layouts=2)
+    assert [s.id for s in both] == ["pick/softball/0", "pick/softball/1", "pick/banana/0", "pick/banana/1"]
+    assert all(s.scene.distractors == () and s.scene.target == s.object for s in both)
+    assert both[2:] == pickability_specs(["banana"], layouts=2)
+    assert both[0].scene.seed != both[1].scene.seed
+    assert pickability_specs(["banana"], layouts=1, seed=1)[0].scene.seed != both[2].scene.seed
+    with pytest.raises(ValueError, match="layouts"):
+        pickability_specs(["banana"], layouts=0)
+
+
+def test_the_method_is_the_craft_e_bundle_with_the_grasp_energy_alone() -> None:
+    m = pickability_method()
+    assert (m.name, m.beta, m.gamma) == (METHOD, 0.0, 0.0) and m.bundle.name == "craft-e-default"
+
+
+def _record(asset: str, layout: int, failure: str, detail: str = "", three_d: str = "") -> dict[str, Any]:
+    return {"target": asset, "layout": layout, "three_d_detail": three_d,
+            "methods": {METHOD: {"failure": failure, "pick_detail": detail}}}
+
+
+def test_the_report_counts_per_asset_and_says_why_the_first_failure_failed() -> None:
+    records = [_record("a_ball", 0, "no_grasp", three_d="object section 9.7 cm | does not fit"),
+               _record("a_ball", 1, "no_grasp"), _record("cup", 0, "success"),
+               _record("cup", 1, "missed", detail="fingers closed on nothing"), _record("pear", 0, "success"),
+               _record("pear", 1, "success")]
+    config = {"assets": 3, "layouts": 2, "seed": 0, "pipeline": {"grasp": "grconvnet", "rois": "predicted"},
+              "gripper": "panda", "max_span_m": 0.074,
+              "footprints_cm": {"a_ball": "9.7 × 9.5", "cup": "8.0 × 8.0", "pear": "7.0 × 6.0"}}
+    report = PickabilityReport(records, config)
+    data = report.to_dict()
+    assert data["success_rate"] == round(3 / 6, 6)
+    assert data["outcomes"] == {"missed": 1, "no_grasp": 2, "success": 3}
+    assert data["assets"]["cup"] == {"episodes": 2, "success": 1, "outcomes": {"missed": 1, "success": 1}}
+    assert report.why("a_ball") == "0: object section 9.7 cm / does not fit"  # a pipe would break the table
+    assert report.why("cup") == "1: fingers closed on nothing" and report.why("pear") == ""
+    text = report.to_markdown()
+    assert "= 6 episodes" in text and "7.4 cm" in text and "Picked: **3/6** episodes (50.0 %)" in text
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert [r.split(" | ")[0] for r in rows] == ["| a_ball", "| cup"]  # fewest picks first; pear is not a row
+    assert "| 0/2 | no_grasp 2 |" in rows[0]
+    assert "Picked in every layout (1): pear." in text
+    assert json.loads(json.dumps(data)) == data
+
+
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], str]:
+    out = tmp_path_factory.mktemp("pickability")
+    result = CliRunner().invoke(app, ["eval", "pickability", "--asset", "banana", "--asset", "softball",
+                                      "--layouts", "1", "--json", str(out / "p.json"), "--markdown",
+                                      str(out / "p.md")])
+    assert result.exit_code == 0, result.output
+    return json.loads((out / "p.json").read_text()), (out / "p.md").read_text()
+
+
+def test_a_banana_is_picked_and_a_softball_is_too_wide_for_the_hand(cli_run: tuple[dict[str, Any], str]) -> None:
+    data, text = cli_run
+    assert [e["id"] for e in data["episodes"]] == ["pick/banana/0", "pick/softball/0"]
+    banana, softball = data["episodes"]
+    assert banana["methods"][METHOD]["failure"] == "success" and banana["methods"][METHOD]["detect"]
+    assert banana["distractors"] == [] and banana["methods"][METHOD]["pick_outcome"] == "success"
+    # 9.7 cm across every way: no section fits the Panda hand's 7.4 cm (a physical limit)
+    assert softball["methods"][METHOD]["failure"] == "no_grasp" and not softball["three_d"]
+    assert "does not fit the 7.4 cm opening" in softball["three_d_detail"]
+    assert data["assets"] == {"banana": {"episodes": 1, "success": 1, "outcomes": {"success": 1}},
+                              "softball": {"episodes": 1, "success": 0, "outcomes": {"no_grasp": 1}}}
+    config = data["config"]
+    assert (config["gripper"], config["max_span_m"], config["method"]["beta"], config["method"]["gamma"]) == (
+        "panda", 0.074, 0.0, 0.0)
+    assert "| softball | 9.7 × 9.5 | 0/1 | no_grasp 1 | 0: object section" in text
+    assert "Picked in every layout (1): banana." in text
+
+
+def test_bad_input_exits_2_with_the_fix_and_writes_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "p.json"
+    result = CliRunner().invoke(app, ["eval", "pickability", "--asset", "bananna", "--json", str(out)])
+    assert result.exit_code == 2 and "'bananna'" in result.output and "asset ids" in result.output
+    result = CliRunner().invoke(app, ["eval", "pickability", "--grasp", "oracle", "--json", str(out)])
+    assert result.exit_code == 2 and "ground truth" in result.output
+    assert not out.exists()
