@@ -63,7 +63,11 @@ class PickConfig:
     lift_height: float = 0.15
     lift_inward_steps: int = 5  # if straight up is out of reach, pull the lift point inwards...
     lift_inward_step: float = 0.02  # ...by this much per try
-    min_lift_rise: float = 0.10  # the target must rise this much to count as lifted
+    # The target must rise this much to count as lifted, unless nothing but the robot supports it
+    # after the hold: a plate held by its rim hangs tilted and its centre rises less than the lift
+    # (before this exception such picks stopped as lift_failed while the plate hung clear of the
+    # table; a body still resting on the table or on another object is being dragged, not lifted).
+    min_lift_rise: float = 0.10
     slip_tolerance: float = 0.03  # m the held body may shift in the hand before it counts as lost
     release_clearance: float = 0.03  # object bottom above the table when released
     min_transport_gap: float = 0.05  # carry at least this far above the release height
@@ -470,7 +474,10 @@ def execute_pick(
             Outcome.WRONG_OBJECT, pinched, f"lifted body {pinched}, target is {target_body}"
         )
     if rise < cfg.min_lift_rise:
-        return progress.finish(Outcome.LIFT_FAILED, pinched, f"target rose only {rise:.3f} m")
+        support = _supports(scene, target_body, robot.body_id)
+        if support:
+            return progress.finish(Outcome.LIFT_FAILED, pinched,
+                                   f"target rose only {rise:.3f} m and still rests on {support}")
 
     in_hand = _InHand(robot, scene, target_body, cfg)
     carried = robot.follow([s.q for s in plan.transport], monitor=in_hand)
@@ -489,6 +496,16 @@ def execute_pick(
         target_body,
         "" if in_zone else "target came to rest outside the drop zone",
     )
+
+
+def _supports(scene: Scene, body: int, robot_body: int) -> str:
+    """What ``body`` touches besides the robot ("" when only the robot holds it): the table, or
+    the names of the other objects it leans on."""
+    touched = {int(c[2]) for c in p.getContactPoints(bodyA=body, physicsClientId=scene.client)} - {robot_body}
+    if not touched:
+        return ""
+    names = {o.body_id: o.name for o in scene.objects}
+    return ", ".join(sorted("the table" if b == scene.table_id else names.get(b, f"body {b}") for b in touched))
 
 
 def _clearing_rise(env: SimEnv, cfg: PickConfig) -> float:
