@@ -25,6 +25,8 @@ from craft_e.runtime.sim.assets import object_catalog
 def test_assets_default_to_the_whole_catalogue_and_unknown_ones_are_named() -> None:
     assert check_assets([]) == sorted(object_catalog()) and len(check_assets([])) == 74
     assert check_assets(["softball", "banana", "softball"]) == ["softball", "banana"]
+    markers = sorted(a for a, o in object_catalog().items() if o.name == "marker")
+    assert len(markers) == 4 and check_assets([" Marker ", "banana"]) == [*markers, "banana"]  # a plain name
     with pytest.raises(UnknownAssetError, match="'bananna'"):
         check_assets(["banana", "bananna"])
 

@@ -12,7 +12,8 @@ from .common import fail
 
 def eval_pickability(
     assets: Annotated[list[str] | None, typer.Option(
-        "--asset", help="An asset id of the sim catalogue (repeatable; default: all 74).")] = None,
+        "--asset", help="An asset id or plain name of the sim catalogue, e.g. softball or marker (every marker); "
+                        "repeatable; default: all 74.")] = None,
     grasp: Annotated[str, typer.Option(help="grconvnet | ggcnn | ggcnn2 | antipodal.")] = "grconvnet",
     layouts: Annotated[int, typer.Option(min=1, help="Seeded poses per asset.")] = 3,
     kb: ep.SceneKbOpt = None,

@@ -32,6 +32,7 @@ from .sim_eval import (
     default_encoder,
     episode_rng,
     placeable,
+    plain_name,
     run_one_episode,
     worker_context,
 )
@@ -62,17 +63,28 @@ def pickability_method(kb: Path | None = None, kb_dir: Path | None = None) -> Me
 
 
 def check_assets(assets: Sequence[str]) -> list[str]:
-    """``assets`` in the order given, each checked against the catalogue (none: every asset)."""
+    """``assets`` as asset ids, in the order given (none: every asset). Each entry is an asset id
+    or a plain name of the catalogue ("marker": every marker asset), as labels files take them."""
     from ..sim.assets import object_catalog
 
     catalog = object_catalog()
     if not assets:
         return sorted(catalog)
-    unknown = [a for a in assets if a not in catalog]
+    out: list[str] = []
+    unknown: list[str] = []
+    for entry in assets:
+        if entry in catalog:
+            out.append(entry)
+            continue
+        named = sorted(a for a, o in catalog.items() if o.name == plain_name(entry))
+        if named:
+            out.extend(named)
+        else:
+            unknown.append(entry)
     if unknown:
-        raise UnknownAssetError(f"unknown asset(s) {', '.join(map(repr, unknown))}: choose asset ids of the sim "
-                                f"catalogue (runtime/sim/assets.py), e.g. {', '.join(sorted(catalog)[:3])}")
-    return list(dict.fromkeys(assets))
+        raise UnknownAssetError(f"unknown asset(s) {', '.join(map(repr, unknown))}: give asset ids or plain names of "
+                                f"the sim catalogue (runtime/sim/objects.json), e.g. {', '.join(sorted(catalog)[:3])}")
+    return list(dict.fromkeys(out))
 
 
 def pickability_specs(assets: Sequence[str], *, layouts: int = 3, seed: int = 0,

@@ -107,7 +107,8 @@ class SimLabels:
         return list(dict.fromkeys(p.verb for p in self.pairs))
 
 
-def _plain(name: str) -> str:
+def plain_name(name: str) -> str:
+    """A plain object name as the catalogue writes it: lower case, single spaces."""
     return " ".join(name.strip().lower().split())
 
 
@@ -138,12 +139,12 @@ def load_sim_labels(path: Path) -> SimLabels:
         verb, raw = normalize_verb_name(cells[0]), cells[1]
         if raw in catalog:
             assets: tuple[str, ...] = (raw,)
-        elif _plain(raw) in by_name:
-            raw = _plain(raw)
+        elif plain_name(raw) in by_name:
+            raw = plain_name(raw)
             assets = tuple(by_name[raw])
         else:
             known = list(catalog) + list(by_name)
-            close = difflib.get_close_matches(_plain(raw), known, n=3)
+            close = difflib.get_close_matches(plain_name(raw), known, n=3)
             raise LabelsError(f"{path}:{lineno}: {raw!r} is neither a sim asset id nor a plain name "
                               f"(close: {', '.join(close) or 'none'}; see runtime/sim/objects.json)")
         pairs.setdefault((verb, raw), LabelPair(verb, raw, assets))
