@@ -33,7 +33,12 @@ def eval_pickability(
     landing_check: ep.LandingCheckOpt = True,
 ) -> None:
     """Each asset alone, picked as `craft eval sim` picks, choosing by E_grasp alone: what the pick loses."""
-    from ..evaluation.pickability import UnknownAssetError, evaluate_pickability, pickability_method
+    from ..evaluation.pickability import (
+        UnknownAssetError,
+        check_assets,
+        evaluate_pickability,
+        pickability_method,
+    )
     from ..sim.assets import SharedAssetsMissingError
     from ..sim.episode import sim_configs
     from ..sim.fallback import FallbackConfig
@@ -52,9 +57,13 @@ def eval_pickability(
                                 fallback=FallbackConfig(enabled=grasp_fallback))
     except ValueError as exc:
         fail(str(exc))
+    try:
+        chosen = check_assets(assets or ())
+    except UnknownAssetError as exc:
+        fail(str(exc))
     method = pickability_method(kb, kb_dir)
     ep.run_with_progress(
-        lambda bar: evaluate_pickability(assets or (), config=config, layouts=layouts, seed=seed,
+        lambda bar: evaluate_pickability(chosen, config=config, layouts=layouts, seed=seed,
                                          env_config=env_config, method=method, progress=bar, jobs=jobs),
         "episodes", "episodes", json_out, markdown,
         (UnknownAssetError, PlacementError, SharedAssetsMissingError, FileNotFoundError))

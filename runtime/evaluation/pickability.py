@@ -82,8 +82,14 @@ def check_assets(assets: Sequence[str]) -> list[str]:
         else:
             unknown.append(entry)
     if unknown:
+        import difflib
+
+        known = sorted({*catalog, *(o.name for o in catalog.values())})
+        hints = [f"{u!r}: did you mean {' or '.join(map(repr, close))}?" for u in unknown
+                 if (close := difflib.get_close_matches(plain_name(u), known, n=2))]
         raise UnknownAssetError(f"unknown asset(s) {', '.join(map(repr, unknown))}: give asset ids or plain names of "
-                                f"the sim catalogue (runtime/sim/objects.json), e.g. {', '.join(sorted(catalog)[:3])}")
+                                f"the sim catalogue (runtime/sim/objects.json), e.g. {', '.join(sorted(catalog)[:3])}"
+                                + ("; " + "; ".join(hints) if hints else ""))
     return list(dict.fromkeys(out))
 
 
