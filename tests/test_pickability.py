@@ -27,7 +27,7 @@ def test_assets_default_to_the_whole_catalogue_and_unknown_ones_are_named() -> N
     assert check_assets(["softball", "banana", "softball"]) == ["softball", "banana"]
     markers = sorted(a for a, o in object_catalog().items() if o.name == "marker")
     assert len(markers) == 4 and check_assets([" Marker ", "banana"]) == [*markers, "banana"]  # a plain name
-    with pytest.raises(UnknownAssetError, match="'bananna'.*did you mean 'banana'"):
+    with pytest.raises(UnknownAssetError, match=r"'bananna'.*did you mean 'banana'"):
         check_assets(["banana", "bananna"])
 
 

@@ -99,6 +99,10 @@ SETTINGS: tuple[Setting, ...] = (
             size_cue=True, colour_cue=True, classifier=_LITE1),
     Setting("Lite1, 2x fit + size + look-alike cue", "Lite1, 2x, fit; the size and look-alike cues", "2x", "fit",
             size_cue=True, lookalike_cue=True, classifier=_LITE1),
+    Setting("Lite1, active look + size cue", "Lite1, the look's view alone (fit), size cue", "look", "fit",
+            size_cue=True, classifier=_LITE1),
+    Setting("Lite1, overhead + active look + size cue", "Lite1, mean embedding of the 2x fit view and the look, "
+            "size cue", "fused", "fit", size_cue=True, classifier=_LITE1),
 )
 
 
