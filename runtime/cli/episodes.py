@@ -1,7 +1,9 @@
-"""What the episode-running commands share (``eval sim``, ``eval static``, ``eval recognition``).
+"""What the episode-running commands share (``eval sim``, ``eval static``, ``eval recognition``,
+``eval pickability``, ``sim demo``).
 
-A progress bar on stderr, the ``--methods`` list, and one runner that times the evaluation, turns
-its input errors into exit code 2 and writes the report — written once, not per command.
+A progress bar on stderr, the ``--methods`` list, the pipeline behind the sim options
+(``pick_pipeline``), and one runner that times the evaluation, turns its input errors into exit
+code 2 and writes the report — written once, not per command.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from .common import checked_output_file, err, fail, note
 
 if TYPE_CHECKING:
     from ..evaluation.methods import MethodSpec
+    from ..sim.env import EnvConfig
+    from ..sim.pipeline import PipelineConfig
 
 LayoutsOpt = Annotated[int, typer.Option(min=1, help="Layouts (scenes) per verb–target pair.")]
 MethodsOpt = Annotated[list[str] | None, typer.Option(
@@ -156,6 +160,31 @@ class ProgressBar:
 
     def __exit__(self, *exc: object) -> None:
         self._bar.__exit__(None, None, None)
+
+
+def pick_pipeline(
+    grasp: str, rois: str, threads: int, gripper: str, wrist_look: bool, clearance: bool, fine_collision: bool,
+    landing_check: bool, relocate: bool, refine_grasps: bool, grasp_fallback: bool, *, prefer_clear: bool = False,
+    grasp_checks: bool = True, max_grasps: int = 5,
+) -> tuple[EnvConfig, PipelineConfig]:
+    """The env and pipeline behind the sim commands' shared options (``eval sim``, ``eval
+    pickability``, ``sim demo``), built one way; an invalid choice (an unknown gripper, grasp
+    source or ROI source) exits 2 with the message."""
+    from ..sim.episode import sim_configs
+    from ..sim.fallback import FallbackConfig
+    from ..sim.pipeline import PipelineConfig
+    from ..sim.refine import RefineConfig
+
+    try:
+        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
+                                                 landing_check, prefer_clear, relocate)
+        config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
+                                ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
+                                pick=pick, fingers=fingers, refine=RefineConfig(enabled=refine_grasps),
+                                fallback=FallbackConfig(enabled=grasp_fallback))
+    except ValueError as exc:
+        fail(str(exc))
+    return env_config, config
 
 
 def run_with_progress(

@@ -40,23 +40,13 @@ def eval_pickability(
         pickability_method,
     )
     from ..sim.assets import SharedAssetsMissingError
-    from ..sim.episode import sim_configs
-    from ..sim.fallback import FallbackConfig
-    from ..sim.pipeline import PipelineConfig
     from ..sim.placement import PlacementError
-    from ..sim.refine import RefineConfig
 
     if grasp == "oracle":
         fail("--grasp oracle uses the simulator's ground truth: pickability measures the robot's own grasps; "
              "choose grconvnet, ggcnn, ggcnn2 or antipodal")
-    try:
-        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check, False, relocate)
-        config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick,  # type: ignore[arg-type]
-                                fingers=fingers, refine=RefineConfig(enabled=refine_grasps),
-                                fallback=FallbackConfig(enabled=grasp_fallback))
-    except ValueError as exc:
-        fail(str(exc))
+    env_config, config = ep.pick_pipeline(grasp, "predicted", threads, gripper, wrist_look, clearance,
+                                          fine_collision, landing_check, relocate, refine_grasps, grasp_fallback)
     try:
         chosen = check_assets(assets or ())
     except UnknownAssetError as exc:

@@ -14,7 +14,6 @@ from .common import (
     BetaOpt,
     EnergyFormOpt,
     GammaOpt,
-    fail,
     grounding_settings,
 )
 
@@ -60,23 +59,13 @@ def eval_sim(
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
     from ..grounding.size_cue import CueUnavailableError
     from ..sim.assets import SharedAssetsMissingError
-    from ..sim.episode import sim_configs
-    from ..sim.fallback import FallbackConfig
-    from ..sim.pipeline import PipelineConfig
     from ..sim.placement import PlacementError
-    from ..sim.refine import RefineConfig
     from ..sim.retry import RetryConfig
 
-    try:
-        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check, prefer_clear, relocate)
-        config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
-                                ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
-                                pick=pick, fingers=fingers,
-                                refine=RefineConfig(enabled=refine_grasps),
-                                fallback=FallbackConfig(enabled=grasp_fallback))
-    except ValueError as exc:
-        fail(str(exc))
+    env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
+                                          landing_check, relocate, refine_grasps, grasp_fallback,
+                                          prefer_clear=prefer_clear, grasp_checks=grasp_checks,
+                                          max_grasps=max_grasps)
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels)
     ep.check_classifier(classifier)

@@ -64,22 +64,15 @@ def demo(
     from ..grounding.size_cue import CueUnavailableError
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.env import SimEnv
-    from ..sim.episode import sim_configs
-    from ..sim.fallback import FallbackConfig
     from ..sim.figures import FrameRecorder, describe, plot_episode
-    from ..sim.pipeline import PipelineConfig, run_episode, sim_vocabulary
-    from ..sim.refine import RefineConfig
+    from ..sim.pipeline import run_episode, sim_vocabulary
     from ..sim.retry import RetryConfig
     from .common import err, fail
     from .common import out as console
 
+    env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
+                                          landing_check, relocate, refine_grasps, grasp_fallback)
     try:
-        env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check, relocate=relocate)
-        config = PipelineConfig(grasp=grasp, rois=rois, torch_threads=threads,  # type: ignore[arg-type]
-                                pick=pick, fingers=fingers,
-                                refine=RefineConfig(enabled=refine_grasps),
-                                fallback=FallbackConfig(enabled=grasp_fallback))
         all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:
         fail(str(exc))
