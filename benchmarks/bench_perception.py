@@ -58,6 +58,8 @@ import platform
 import time
 from pathlib import Path
 
+import numpy as np
+
 from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.encoders.image import ImageEncoder, UInt8Image
@@ -69,10 +71,18 @@ from craft_e.runtime.evaluation.sim_eval import (
     make_episode_specs,
     select_methods,
 )
+from craft_e.runtime.grounding.grounder import Grounder
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.perception.observation import Observation
 from craft_e.runtime.perception.roi import BoolMask
+from craft_e.runtime.sim.active_look import (
+    ActiveLook,
+    ActiveLookConfig,
+    LookingGrounder,
+    standing_volume,
+)
 from craft_e.runtime.sim.choose import (
+    LazyROI,
     ground_lazily,
     perceive_for_pick,
     pick_reachable,
@@ -84,6 +94,7 @@ from craft_e.runtime.sim.fallback import FallbackConfig
 from craft_e.runtime.sim.pipeline import (
     GraspCandidate,
     PipelineConfig,
+    frame_look,
     grounding_rois,
     perceive,
     relocated_grasp,
@@ -141,6 +152,20 @@ def _time_floor(cfg: PipelineConfig, obs: Observation, masks: list[BoolMask], cr
     return t2 - t1, t3 - t2
 
 
+def looking(grounder: Grounder, env: SimEnv, cfg: PipelineConfig, rois: list[LazyROI], encoder: ImageEncoder,
+            timings: dict[str, float] | None) -> Grounder | LookingGrounder:
+    """``grounder``, or with ``--active-look`` the same grounder looking again at its top ROIs on
+    this frame (the robot's fast encoder, as in ``perceive_for_pick``)."""
+    if not cfg.active_look.enabled:
+        return grounder
+    from craft_e.runtime.encoders.image import inference_encoder
+
+    table_z = env.scene.layout.table_z
+    points = [standing_volume(r.material if r.material is not None else np.zeros((0, 3)), table_z) for r in rois]
+    return LookingGrounder(grounder, ActiveLook(env.client, points, inference_encoder(encoder), cfg.active_look,
+                                                timings=timings))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
@@ -148,6 +173,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=positive_int, default=2)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--json", type=output_file, default=None)
+    parser.add_argument("--active-look", action="store_true",
+                        help="with the opt-in active look (sim/active_look.py): its encoder pass is the "
+                             "look_encode stage, its renders are left out")
     parser.add_argument("--no-grasp-fallback", action="store_true",
                         help="without the antipodal fallback (sim/fallback.py): what it costs")
     args = parser.parse_args()
@@ -156,13 +184,15 @@ def main() -> None:
 
     from craft_e.runtime.encoders.image import crop_box, inference_encoder
 
-    cfg = PipelineConfig(torch_threads=args.threads, fallback=FallbackConfig(enabled=not args.no_grasp_fallback))
+    cfg = PipelineConfig(torch_threads=args.threads, fallback=FallbackConfig(enabled=not args.no_grasp_fallback),
+                         active_look=ActiveLookConfig(enabled=args.active_look))
     specs = make_episode_specs(load_sim_labels(args.labels), layouts=1, max_pairs=args.scenes, min_gap=None)
     enc = default_encoder(args.threads)
     fast_enc = inference_encoder(enc)  # the robot's encoder (perceive_for_pick): the floor's too
     runnable, _ = load_methods(select_methods(["CRAFT-E"]), enc.text_encoder_id)
     grounder = build_grounders(runnable, GroundingSettings(), sim_vocabulary())["CRAFT-E"]
-    stages = {k: 0.0 for k in ("segment", "grasp_net", "encode", "finger_checks", "ground_ik")}
+    stages = {k: 0.0 for k in ("segment", "grasp_net", "encode", "finger_checks", "ground_ik")
+              + (("look_encode",) if args.active_look else ())}
     floor = {"grasp_net_frame": 0.0, "encode": 0.0}
     rois_total, plans, agree, eager_checks, worst_gap = 0, 0, 0, 0.0, 0.0
     relocated, blocked, same_move = 0, 0, 0
@@ -183,12 +213,15 @@ def main() -> None:
             # ... and the grounding with its pick check once: the first relocation check of a
             # process builds the arm links' hull samples (``sim/arm_hull.py``, ~0.2 s, once)
             warm_made: PlanCache = {}
-            warm_choice = ground_lazily(grounder, spec.verb, warm, pick_reachable(env, cfg, warm, warm_made))
+            warm_choice = ground_lazily(looking(grounder, env, cfg, warm, enc, None), spec.verb, warm,
+                                        pick_reachable(env, cfg, warm, warm_made))
             if warm_choice.grasp is not None and warm_choice.grounding.chosen is not None:
                 relocate_choice(env, cfg, obs, warm[warm_choice.grounding.chosen.index], warm_choice.grasp, warm_made)
             eager_t: dict[str, float] = {}
             eager = perceive(env, enc, cfg, obs, timings=eager_t)  # the evaluation's path
-            eager_choice = grounder.ground(spec.verb, grounding_rois(eager)).chosen
+            eager_choice = (frame_look(env, eager, enc, cfg.active_look).ground(grounder, spec.verb,
+                                                                                 grounding_rois(eager))[0].chosen
+                            if args.active_look else grounder.ground(spec.verb, grounding_rois(eager)).chosen)
             masks = [r.roi.mask for r in eager.rois]
             crops = [crop_box(sharp, tuple(v * cfg.rgb_scale for v in r.roi.box_xywh)) for r in eager.rois]
             for _ in range(args.repeats):
@@ -201,14 +234,17 @@ def main() -> None:
                 lazy = perceive_for_pick(env, enc, cfg, frame, timings=timings)
                 t0 = time.perf_counter()
                 made: PlanCache = {}  # the IK plans of this scene, reused by the relocation check
-                choice = ground_lazily(grounder, spec.verb, lazy, pick_reachable(env, cfg, lazy, made))
+                choice = ground_lazily(looking(grounder, env, cfg, lazy, enc, timings), spec.verb, lazy,
+                                       pick_reachable(env, cfg, lazy, made))
                 picked = choice.grasp
                 if picked is not None and choice.grounding.chosen is not None:
                     picked, why = relocate_choice(env, cfg, frame, lazy[choice.grounding.chosen.index], picked,
                                                   made)
                     relocated += int(why.startswith("approach blocked") and "kept" not in why)
                     blocked += int(why.startswith("approach blocked"))
-                timings["ground_ik"] = time.perf_counter() - t0
+                # the look's renders are the simulator's and its encoder pass is its own stage
+                timings["ground_ik"] = (time.perf_counter() - t0 - timings.get("look_render", 0.0)
+                                        - timings.get("look_encode", 0.0))
                 plans += choice.plans
                 chosen = choice.grounding.chosen
                 same_roi = (chosen is None) == (eager_choice is None) and (
@@ -260,7 +296,7 @@ def main() -> None:
             "floor": {k: round(v / n, 4) for k, v in floor.items()}, "scenes": len(specs),
             "repeats": args.repeats, "order": "alternating (robot first, then floor first)",
             "rois_per_scene": rois_total / n, "torch_threads": args.threads,
-            "grasp_fallback": cfg.uses_fallback,
+            "grasp_fallback": cfg.uses_fallback, "active_look": args.active_look,
             "torch_version": torch.__version__, "cpus": os.cpu_count(), "cpu_model": _cpu_model(),
             "image_encoder": fast_enc.id,
             "load_average": [round(load[0], 2), round(load_after[0], 2)],

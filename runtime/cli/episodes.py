@@ -64,6 +64,10 @@ LandingCheckOpt = Annotated[bool, typer.Option(
 RetriesOpt = Annotated[int, typer.Option(
     min=0, help="After a pick whose hand ends empty (missed, grip lost), try again on a fresh frame up to this "
                 "many times (sim/retry.py); reported beside the single-attempt Grasp Rate, which it never changes.")]
+ActiveLookOpt = Annotated[bool, typer.Option(
+    help="Before choosing, look again at the two lowest-energy regions from a camera 0.35 m away at 45° "
+         "(as an on-arm camera could) and ground with both views (sim/active_look.py; its encoder pass counts "
+         "as robot time).")]
 PreferClearOpt = Annotated[bool, typer.Option(
     help="Use the clearance check as a preference: per region, the first grasp that passes the other checks "
          "with a clear approach, else the first that passes (never drops a region; sim/clearance.py).")]
@@ -165,11 +169,12 @@ class ProgressBar:
 def pick_pipeline(
     grasp: str, rois: str, threads: int, gripper: str, wrist_look: bool, clearance: bool, fine_collision: bool,
     landing_check: bool, relocate: bool, refine_grasps: bool, grasp_fallback: bool, *, prefer_clear: bool = False,
-    grasp_checks: bool = True, max_grasps: int = 5,
+    grasp_checks: bool = True, max_grasps: int = 5, active_look: bool = False,
 ) -> tuple[EnvConfig, PipelineConfig]:
     """The env and pipeline behind the sim commands' shared options (``eval sim``, ``eval
     pickability``, ``sim demo``), built one way; an invalid choice (an unknown gripper, grasp
     source or ROI source) exits 2 with the message."""
+    from ..sim.active_look import ActiveLookConfig
     from ..sim.episode import sim_configs
     from ..sim.fallback import FallbackConfig
     from ..sim.pipeline import PipelineConfig
@@ -181,7 +186,8 @@ def pick_pipeline(
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers, refine=RefineConfig(enabled=refine_grasps),
-                                fallback=FallbackConfig(enabled=grasp_fallback))
+                                fallback=FallbackConfig(enabled=grasp_fallback),
+                                active_look=ActiveLookConfig(enabled=active_look))
     except ValueError as exc:
         fail(str(exc))
     return env_config, config

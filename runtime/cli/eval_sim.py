@@ -50,6 +50,7 @@ def eval_sim(
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
     prefer_clear: ep.PreferClearOpt = False,
+    active_look: ep.ActiveLookOpt = False,
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
@@ -65,7 +66,7 @@ def eval_sim(
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
                                           prefer_clear=prefer_clear, grasp_checks=grasp_checks,
-                                          max_grasps=max_grasps)
+                                          max_grasps=max_grasps, active_look=active_look)
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels)
     ep.check_classifier(classifier)

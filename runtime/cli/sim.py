@@ -42,6 +42,7 @@ def demo(
     fine_collision: ep.FineCollisionOpt = True,
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
+    active_look: ep.ActiveLookOpt = False,
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
@@ -71,7 +72,8 @@ def demo(
     from .common import out as console
 
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
-                                          landing_check, relocate, refine_grasps, grasp_fallback)
+                                          landing_check, relocate, refine_grasps, grasp_fallback,
+                                          active_look=active_look)
     try:
         all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:

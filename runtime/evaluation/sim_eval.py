@@ -351,6 +351,8 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult, detect_iou: float =
         }
         if o.relocation is not None:  # the relocation policy ran: key only then (headline JSON unchanged)
             methods[name]["relocation"] = o.relocation
+        if o.looked is not None:  # the active look ran: key only then (headline JSON unchanged)
+            methods[name]["looked_rois"] = list(o.looked)
         if o.retries is not None:  # a retry policy ran: keys only then (the headline JSON is unchanged)
             from ..sim.retry import succeeded
 

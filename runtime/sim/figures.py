@@ -213,6 +213,9 @@ def describe(result: EpisodeResult, method: str, *, gripper: str | None = None) 
     outcome = result.outcomes[method]
     lines = [outcome.grounding.render()]
     per = result.perception
+    if outcome.looked:  # the active look ran: the ranking above is the one with both views
+        looked = ", ".join(f"roi{i}" for i in outcome.looked)
+        lines.append(f"active look: {looked} seen again, closer, by the look camera; the ranking above mixes both views")
     lines.append(f"3D (viable grasp on the target): {per.three_d}"
                  + (f" ({per.three_d_detail})" if per.three_d_detail else ""))
     lines.append(f"Detect (chosen ROI is the target, IoU {outcome.chosen_iou:.2f}): {outcome.detect}")

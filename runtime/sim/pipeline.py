@@ -74,6 +74,7 @@ from ..perception.extents import measure_extents
 from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
 from ..perception.segment import SegmentConfig, segment
+from .active_look import ActiveLook, ActiveLookConfig, standing_volume
 from .assets import object_catalog
 from .clearance import HeightMap, heights_around, heights_excluding
 from .env import SimEnv
@@ -144,6 +145,8 @@ class PipelineConfig:
     refine: RefineConfig = field(default_factory=RefineConfig)  # turn / move misfitting grasps (refine.py)
     #: antipodal grasps for a region no network grasp fits (fallback.py; network sources only)
     fallback: FallbackConfig = field(default_factory=FallbackConfig)
+    #: a second, closer view of the top candidates before the choice (active_look.py; opt-in)
+    active_look: ActiveLookConfig = field(default_factory=ActiveLookConfig)
 
     def __post_init__(self) -> None:
         if self.grasp not in GRASP_SOURCES:
@@ -152,6 +155,7 @@ class PipelineConfig:
             raise ValueError(f"ROI source {self.rois!r}: choose one of {', '.join(ROI_SOURCES)}")
 
     def to_dict(self) -> dict[str, Any]:
+        looked = {"active_look": self.active_look.to_dict()} if self.active_look.enabled else {}
         return {
             "grasp": self.grasp,
             "rois": self.rois,
@@ -165,6 +169,7 @@ class PipelineConfig:
             "refine_grasps": self.refine.enabled,
             "grasp_fallback": self.uses_fallback,
             "fallback_clearance_m": self.fallback.clearance(self.fingers.clearance) if self.uses_fallback else None,
+            **looked,  # only when on: the default runs' records stay as published
         }
 
     @property
@@ -678,6 +683,16 @@ def perceive(
     )
 
 
+def frame_look(
+    env: SimEnv, perception: ScenePerception, encoder: ImageEncoder, config: ActiveLookConfig,
+    before_render: Callable[[], None] | None = None,
+) -> ActiveLook:
+    """The active look for ``perception``'s frame: each ROI aimed at by its raised depth points."""
+    table_z = env.scene.layout.table_z
+    return ActiveLook(env.client, [standing_volume(perception.raised.within(r.roi.mask), table_z)
+                                   for r in perception.rois], encoder, config, before_render=before_render)
+
+
 def grounding_rois(perception: ScenePerception) -> list[ROI]:
     """The grounder's view of the scene: boxes, usable grasps with scores, embeddings.
 
@@ -762,6 +777,9 @@ class MethodOutcome:
     # blocked it and where it moved (or that it was kept); None when the policy is off or nothing
     # was executed. ``grasp`` is then the grasp executed.
     relocation: str | None = None
+    #: with the active look (``active_look.py``): the ROIs it looked at before this choice;
+    #: None when the look is off
+    looked: tuple[int, ...] | None = None
 
     @property
     def success(self) -> bool:
@@ -908,18 +926,20 @@ def run_episode(
     try:
         perception = perceive(env, encoder, cfg, colours=any(g.colour_cue_active for g in grounders.values()))
         rois = grounding_rois(perception)
+        look = (frame_look(env, perception, encoder, cfg.active_look, before_render=start.restore)
+                if cfg.active_look.enabled else None)
         picks: dict[int, PickResult] = {}
         outcomes: dict[str, MethodOutcome] = {}
         body_names = {o.body_id: o.name for o in env.scene.objects}  # diagnostics only
         for name, grounder in grounders.items():
-            grounding = grounder.ground(spec.verb, rois)
+            grounding, looked = look.ground(grounder, spec.verb, rois) if look else (grounder.ground(spec.verb, rois), None)
             chosen = grounding.chosen
             true_class = true_class_grounding(grounder, spec.verb, perception, body_names)
             true_roi = true_class.roi
             if chosen is None:
                 outcomes[name] = MethodOutcome(name, grounding, None, 0.0, None, False,
                                                not_detected(perception), None, None, true_roi,
-                                               retries=no_retries)
+                                               retries=no_retries, looked=looked)
                 continue
             roi, detect, grasp = chosen_region(perception, chosen, cfg.detect_iou)
             if not detect:
@@ -929,7 +949,7 @@ def run_episode(
                     error = choice_error(perception, true_class, cfg.detect_iou)
                 outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
                                                False, failure, None, grasp, true_roi, error,
-                                               retries=no_retries)
+                                               retries=no_retries, looked=looked)
                 continue
             relocation: str | None = None
             if cfg.pick.clearance.relocate and grasp is not None and grasp.pose is not None:
@@ -955,7 +975,7 @@ def run_episode(
                 attempts = tuple(retry_picks(env, spec.verb, grounder, encoder, cfg, tried, retry))
             outcomes[name] = MethodOutcome(name, grounding, chosen.index, roi.target_iou, roi.body,
                                            True, PICK_FAILURES[pick.outcome], pick, grasp, true_roi,
-                                           retries=attempts, relocation=relocation)
+                                           retries=attempts, relocation=relocation, looked=looked)
         return EpisodeResult(spec, perception, outcomes, dict(env.scene.body_assets))
     finally:
         start.release()
@@ -1021,7 +1041,11 @@ def retry_picks(
         perception = perceive(env, encoder, config,
                               exclude=lambda pose: any(same_grasp(pose, t, cfg) for t in tried),
                               colours=grounder.colour_cue_active)
-        chosen = grounder.ground(verb, grounding_rois(perception)).chosen
+        rois = grounding_rois(perception)
+        if config.active_look.enabled:  # on the fresh frame, as the first attempt's choice had it
+            chosen = frame_look(env, perception, encoder, config.active_look).ground(grounder, verb, rois)[0].chosen
+        else:
+            chosen = grounder.ground(verb, rois).chosen
         if chosen is None:
             attempts.append(Attempt(None, False, not_detected(perception).value))
             break
