@@ -49,7 +49,8 @@ def test_the_camera_sits_at_the_distance_and_elevation_on_the_robot_side() -> No
     assert float(np.linalg.norm(offset)) == pytest.approx(cfg.distance)
     assert math.degrees(math.atan2(offset[2], -offset[0])) == pytest.approx(cfg.elevation_deg)
     assert offset[0] < 0 and offset[1] == pytest.approx(0.0)  # between the object and the robot's base
-    assert cam.intrinsics.width == 2 * 640  # the sharper colour image
+    assert cam.intrinsics.width == cfg.scale * 640
+    assert look_camera(points, ActiveLookConfig(scale=2)).intrinsics.width == 2 * 640  # a sharper image
 
 
 def test_the_projected_box_holds_the_aimed_at_point_and_nothing_behind_counts() -> None:

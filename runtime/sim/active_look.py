@@ -13,10 +13,11 @@ cue 46.4 / 73.9 top-1/5 against 42.3 / 71.6). Here the robot does it in the loop
 3. encode the new crops in one batched pass (robot time: the ``look_encode`` stage), mix each
    looked ROI's embedding with its overhead one (``weight`` on the look), and ground again.
 
-The second grounding is the choice. ``top_k`` 2, ``scale`` 2 and ``weight`` 0.5 were chosen on
-sim-dev (``benchmarks/bench_active_look.py``). The render is simulator work and not timed; so is
-the arm's move to the look pose, which is not simulated: the camera is placed where a camera on
-the arm could be, not flown there, so the scene is untouched by the look.
+The second grounding is the choice. ``top_k`` 2, ``scale`` 1 and ``weight`` 0.5 were chosen on
+sim-dev by ``benchmarks/bench_active_look.py`` (``docs/results/active_look_settings.md``: the
+best Detect of CRAFT-E and direct-LLM together; a sharper 2x render of the look named less). The
+render is simulator work and not timed; so is the arm's move to the look pose, which is not
+simulated: the camera is placed where a camera on the arm could be, not flown there, so the scene is untouched by the look.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ class ActiveLookConfig:
     top_k: int = 2  # ROIs looked at per grounding: the lowest-energy ones
     distance: float = 0.35  # m from the ROI's centre (as in ``craft eval recognition``)
     elevation_deg: float = 45.0  # above the table, from the robot's side (-x)
-    scale: int = 2  # the look's colour image at this many times the scene camera's resolution
+    scale: int = 1  # the look's colour image at this many times the scene camera's resolution
     weight: float = 0.5  # the look's share of the mixed embedding
 
     def __post_init__(self) -> None:
@@ -126,7 +127,8 @@ class Grounds(Protocol):
 class ActiveLook:
     """One frame's looks: renders and encodes each ROI at most once, grounds with them.
 
-    ``points[i]`` are ROI ``i``'s raised world points from the overhead depth. ``before_render``
+    ``points[i]`` are what the camera aims at and frames for ROI ``i``: the ``standing_volume``
+    of its raised world points from the overhead depth (``pipeline.frame_look``). ``before_render``
     puts the scene back to the frame's state first (the evaluation simulates other methods'
     picks between groundings). ``timings`` receives ``look_encode`` (robot time) and
     ``look_render`` (the simulator's, for a caller that times around the look to take out).
