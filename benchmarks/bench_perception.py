@@ -79,7 +79,6 @@ from craft_e.runtime.sim.active_look import (
     ActiveLook,
     ActiveLookConfig,
     LookingGrounder,
-    standing_volume,
 )
 from craft_e.runtime.sim.choose import (
     LazyROI,
@@ -160,10 +159,9 @@ def looking(grounder: Grounder, env: SimEnv, cfg: PipelineConfig, rois: list[Laz
         return grounder
     from craft_e.runtime.encoders.image import inference_encoder
 
-    table_z = env.scene.layout.table_z
-    points = [standing_volume(r.material if r.material is not None else np.zeros((0, 3)), table_z) for r in rois]
-    return LookingGrounder(grounder, ActiveLook(env.client, points, inference_encoder(encoder), cfg.active_look,
-                                                timings=timings))
+    points = [r.material if r.material is not None else np.zeros((0, 3)) for r in rois]
+    return LookingGrounder(grounder, ActiveLook(env.client, points, env.scene.layout.table_z,
+                                                inference_encoder(encoder), cfg.active_look, timings=timings))
 
 
 def main() -> None:

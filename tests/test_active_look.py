@@ -20,6 +20,7 @@ from craft_e.runtime.sim.active_look import (
     ActiveLookConfig,
     look_camera,
     look_crop,
+    occluded_share,
     projected_box,
     standing_volume,
 )
@@ -33,7 +34,8 @@ EASY = SceneSpec(verb="pour", target="mustard_bottle",
                  distractors=("foam_brick", "knife", "apple", "stapler_2"), seed=2)
 
 
-@pytest.mark.parametrize("bad", [{"top_k": 0}, {"weight": 0.0}, {"weight": 1.5}, {"scale": 0}, {"distance": 0.0}])
+@pytest.mark.parametrize("bad", [{"top_k": 0}, {"weight": 0.0}, {"weight": 1.5}, {"scale": 0}, {"distance": 0.0},
+                                 {"max_occluded": 1.5}])
 def test_bad_settings_are_refused_with_the_value(bad: dict[str, Any]) -> None:
     with pytest.raises(ValueError, match="active look"):
         ActiveLookConfig(**bad)
@@ -99,11 +101,12 @@ def _rois(firsts: Sequence[float]) -> list[ROI]:
 def test_the_top_k_are_looked_at_once_and_mixed_by_weight(monkeypatch: pytest.MonkeyPatch) -> None:
     import craft_e.runtime.sim.active_look as al
 
-    monkeypatch.setattr(al, "look_crop", lambda client, points, config: np.zeros((4, 4, 3), np.uint8))
+    monkeypatch.setattr(al, "render_look", lambda client, points, table_z, config: "a view")
+    monkeypatch.setattr(al, "crop_look", lambda look, points, config: np.zeros((4, 4, 3), np.uint8))
     enc = _Encoder(np.array([0.0, 3.0], np.float32))
     restores: list[int] = []
     points = [np.zeros((10, 3))] * 3
-    look = ActiveLook(0, points, enc, ActiveLookConfig(top_k=2, weight=0.25),  # type: ignore[arg-type]
+    look = ActiveLook(0, points, 0.0, enc, ActiveLookConfig(top_k=2, weight=0.25),  # type: ignore[arg-type]
                       before_render=lambda: restores.append(1), timings={})
     grounder = _Grounder()
     rois = _rois([0.9, 0.1, 0.5])
@@ -121,7 +124,7 @@ def test_the_top_k_are_looked_at_once_and_mixed_by_weight(monkeypatch: pytest.Mo
 
 def test_an_roi_with_too_few_points_keeps_its_own_view() -> None:
     enc = _Encoder(np.array([0.0, 3.0], np.float32))
-    look = ActiveLook(0, [np.zeros((2, 3))], enc, ActiveLookConfig(top_k=1))  # type: ignore[arg-type]
+    look = ActiveLook(0, [np.zeros((2, 3))], 0.0, enc, ActiveLookConfig(top_k=1))  # type: ignore[arg-type]
     grounder = _Grounder()
     _, looked = look.ground(grounder, "cut", _rois([0.5]))  # type: ignore[arg-type]
     assert looked == (0,) and look.seen == {0: None} and enc.crops == 0
@@ -145,7 +148,8 @@ def test_the_crop_frames_each_object_in_the_rendered_look(env: SimEnv) -> None:
     raised = RaisedPoints.of(obs, scene.layout.table_z, 0.003)
     cfg = ActiveLookConfig()
     for body in (o.body_id for o in scene.objects):
-        points = standing_volume(raised.within(obs.seg == body), scene.layout.table_z)
+        top = raised.within(obs.seg == body)
+        points = standing_volume(top, scene.layout.table_z)
         cam = look_camera(points, cfg)
         box = projected_box(cam, points)
         assert box is not None
@@ -156,8 +160,50 @@ def test_the_crop_frames_each_object_in_the_rendered_look(env: SimEnv) -> None:
         inside = (xs >= x - 2) & (xs <= x + w + 2) & (ys >= y - 2) & (ys <= y + h + 2)
         assert inside.mean() > 0.99, body  # its top and the side facing the camera
         assert w * h < 1.3 * (np.ptp(xs) + 1) * (np.ptp(ys) + 1), body  # and not much else
-        crop = look_crop(env.client, points, cfg)
+        assert occluded_share(view, top, cfg) < 0.05, body  # nothing stands in front of these
+        crop = look_crop(env.client, top, scene.layout.table_z, cfg)
         assert crop is not None and crop.ndim == 3 and min(crop.shape[:2]) > 50
+
+
+def _top_points(env: SimEnv, spec: SceneSpec) -> tuple[np.ndarray, float]:
+    scene = env.reset(spec)
+    obs = env.capture()
+    assert obs.seg is not None
+    raised = RaisedPoints.of(obs, scene.layout.table_z, 0.003)
+    return raised.within(obs.seg == scene.target.body_id), scene.layout.table_z
+
+
+def test_a_box_between_the_look_and_the_object_drops_the_look(env: SimEnv) -> None:
+    """The look would see the box, not the object: the ROI keeps its overhead view alone."""
+    import pybullet as p
+
+    top, table_z = _top_points(env, EASY)
+    cfg = ActiveLookConfig()
+    cam = look_camera(standing_volume(top, table_z), cfg)
+    assert look_crop(env.client, top, table_z, cfg) is not None
+    between = (np.asarray(cam.eye) + np.asarray(cam.target)) / 2
+    shape = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.06, 0.06, 0.06], physicsClientId=env.client)
+    wall = p.createMultiBody(baseMass=0, baseVisualShapeIndex=shape, basePosition=list(between),
+                             physicsClientId=env.client)
+    try:
+        view = render(env.client, cam)
+        assert occluded_share(view, top, cfg) > 0.9
+        assert look_crop(env.client, top, table_z, cfg) is None
+    finally:
+        p.removeBody(wall, physicsClientId=env.client)
+
+
+def test_a_vessel_hiding_its_own_inside_is_not_occluded(env: SimEnv) -> None:
+    """From 45° a mug's front wall hides part of its inside: those surfaces are the mug's own
+    (inside its footprint), so the look is kept."""
+    spec = SceneSpec(verb="contain", target="mug", distractors=("knife", "apple"), seed=3)
+    top, table_z = _top_points(env, spec)
+    cfg = ActiveLookConfig()
+    view = render(env.client, look_camera(standing_volume(top, table_z), cfg))
+    hidden_by_anything = occluded_share(view, top, dataclasses.replace(cfg, self_margin=-1.0))
+    assert hidden_by_anything > 0.1  # the inside is partly hidden ...
+    assert occluded_share(view, top, cfg) < 0.02  # ... by the mug itself
+    assert look_crop(env.client, top, table_z, cfg) is not None
 
 
 def test_the_standing_volume_adds_the_points_dropped_onto_the_table() -> None:

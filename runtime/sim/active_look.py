@@ -10,8 +10,10 @@ cue 46.4 / 73.9 top-1/5 against 42.3 / 71.6). Here the robot does it in the loop
    own depth points (the box centre of those points and of the same points dropped onto the
    table: no simulator identity), render its colour image, and cut the crop around those points
    projected into the view;
-3. encode the new crops in one batched pass (robot time: the ``look_encode`` stage), mix each
-   looked ROI's embedding with its overhead one (``weight`` on the look), and ground again.
+3. drop a look whose view of the ROI's top points is mostly hidden by something outside its
+   footprint (``occluded_share``), encode the other crops in one batched pass (robot time, with
+   the occlusion checks: the ``look_encode`` stage), mix each looked ROI's embedding with its
+   overhead one (``weight`` on the look), and ground again.
 
 The second grounding is the choice. ``top_k`` 2, ``scale`` 1 and ``weight`` 0.5 were chosen on
 sim-dev by ``benchmarks/bench_active_look.py`` (``docs/results/active_look_settings.md``: the
@@ -36,6 +38,7 @@ from .camera import Camera, render
 if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder, UInt8Image
     from ..grounding.grounder import Grounding
+    from ..perception.observation import Observation
     from ..perception.roi import ROI
 
 FloatArray = npt.NDArray[np.float64]
@@ -54,18 +57,25 @@ class ActiveLookConfig:
     elevation_deg: float = 45.0  # above the table, from the robot's side (-x)
     scale: int = 1  # the look's colour image at this many times the scene camera's resolution
     weight: float = 0.5  # the look's share of the mixed embedding
+    #: a look in which more than this share of the ROI's top points is hidden behind something
+    #: outside the ROI's own footprint sees the occluder, not the ROI: it is dropped (None)
+    max_occluded: float = 0.3
+    occlusion_margin: float = 0.02  # m nearer than the point before a pixel counts as hiding it
+    self_margin: float = 0.01  # m around the ROI's footprint whose surfaces are its own
 
     def __post_init__(self) -> None:
         if self.top_k < 1:
             raise ValueError(f"active look top_k {self.top_k}: look at one ROI at least")
         if not 0.0 < self.weight <= 1.0:
             raise ValueError(f"active look weight {self.weight}: choose a share in (0, 1]")
+        if not 0.0 <= self.max_occluded <= 1.0:
+            raise ValueError(f"active look max_occluded {self.max_occluded}: choose a share in [0, 1]")
         if self.scale < 1 or self.distance <= 0.0:
             raise ValueError(f"active look scale {self.scale} / distance {self.distance}: both must be positive")
 
     def to_dict(self) -> dict[str, float | int]:
         return {"top_k": self.top_k, "distance_m": self.distance, "elevation_deg": self.elevation_deg,
-                "scale": self.scale, "weight": self.weight}
+                "scale": self.scale, "weight": self.weight, "max_occluded": self.max_occluded}
 
 
 def standing_volume(points: FloatArray, table_z: float) -> FloatArray:
@@ -106,17 +116,64 @@ def projected_box(camera: Camera, points: FloatArray) -> tuple[float, float, flo
     return x0, y0, x1 - x0 + 1.0, y1 - y0 + 1.0
 
 
-def look_crop(client: int, points: FloatArray, config: ActiveLookConfig) -> UInt8Image | None:
-    """Render the look at ``points`` and cut the crop around them (None: too few points)."""
-    from ..encoders.image import crop_box
+def occluded_share(view: Observation, top: FloatArray, config: ActiveLookConfig) -> float:
+    """Share of an ROI's ``top`` points (its overhead depth points) hidden in the look ``view`` by
+    a surface outside the ROI's own footprint (its points' xy box grown by ``self_margin``): a
+    bowl's front rim hiding its inside is the ROI itself; a box between it and the camera is not."""
+    world_to_cam = np.linalg.inv(view.cam_to_world)
+    cam = top @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
+    k = view.intrinsics
+    z = np.where(cam[:, 2] > 1e-6, cam[:, 2], np.nan)
+    u = np.round(k.fx * cam[:, 0] / z + k.cx)
+    v = np.round(k.fy * cam[:, 1] / z + k.cy)
+    inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+    if not inside.any():
+        return 1.0
+    ui, vi = u[inside].astype(np.intp), v[inside].astype(np.intp)
+    seen = view.depth[vi, ui].astype(np.float64)
+    nearer = (seen > 0) & (seen < z[inside] - config.occlusion_margin)
+    if not nearer.any():
+        return 0.0
+    hiders = view.points_world_at(vi[nearer] * k.width + ui[nearer])
+    lo, hi = top[:, :2].min(axis=0) - config.self_margin, top[:, :2].max(axis=0) + config.self_margin
+    own = np.all((hiders[:, :2] >= lo) & (hiders[:, :2] <= hi), axis=1)
+    return float(np.count_nonzero(~own)) / float(len(top))
 
-    if len(points) < MIN_POINTS:
+
+@dataclass(frozen=True)
+class LookView:
+    """One look, rendered: the view and where the ROI's standing volume falls in it."""
+
+    view: Observation
+    box: tuple[float, float, float, float]
+
+
+def render_look(client: int, top: FloatArray, table_z: float, config: ActiveLookConfig) -> LookView | None:
+    """Render the look at an ROI whose overhead depth points are ``top`` (simulator work); None
+    when there are too few points to aim at."""
+    if len(top) < MIN_POINTS:
         return None
-    camera = look_camera(points, config)
-    box = projected_box(camera, points)
+    volume = standing_volume(top, table_z)
+    camera = look_camera(volume, config)
+    box = projected_box(camera, volume)
     if box is None:
         return None
-    return crop_box(render(client, camera).rgb, box)
+    return LookView(render(client, camera), box)
+
+
+def crop_look(look: LookView, top: FloatArray, config: ActiveLookConfig) -> UInt8Image | None:
+    """The robot's part of a look: the crop around the ROI, or None when the view is occluded."""
+    from ..encoders.image import crop_box
+
+    if occluded_share(look.view, top, config) > config.max_occluded:
+        return None
+    return crop_box(look.view.rgb, look.box)
+
+
+def look_crop(client: int, top: FloatArray, table_z: float, config: ActiveLookConfig) -> UInt8Image | None:
+    """``render_look`` then ``crop_look``: the crop of one look, or None."""
+    look = render_look(client, top, table_z, config)
+    return crop_look(look, top, config) if look is not None else None
 
 
 class Grounds(Protocol):
@@ -127,15 +184,17 @@ class Grounds(Protocol):
 class ActiveLook:
     """One frame's looks: renders and encodes each ROI at most once, grounds with them.
 
-    ``points[i]`` are what the camera aims at and frames for ROI ``i``: the ``standing_volume``
-    of its raised world points from the overhead depth (``pipeline.frame_look``). ``before_render``
+    ``points[i]`` are ROI ``i``'s raised world points from the overhead depth; the camera aims at
+    and frames their ``standing_volume`` on the table at ``table_z``. ``before_render``
     puts the scene back to the frame's state first (the evaluation simulates other methods'
-    picks between groundings). ``timings`` receives ``look_encode`` (robot time) and
-    ``look_render`` (the simulator's, for a caller that times around the look to take out).
+    picks between groundings). ``timings`` receives ``look_encode`` (robot time: the occlusion
+    checks, the crops and the encoder batch) and ``look_render`` (the simulator's, for a caller
+    that times around the look to take out).
     """
 
     client: int
     points: Sequence[FloatArray]
+    table_z: float
     encoder: ImageEncoder
     config: ActiveLookConfig
     before_render: Callable[[], None] | None = None
@@ -151,9 +210,11 @@ class ActiveLook:
             if self.before_render is not None:
                 self.before_render()
             with _stage(self.timings, "look_render"):  # simulator work: not robot time
-                crops = {i: look_crop(self.client, self.points[i], self.config) for i in new}
-            wanted = [i for i in new if crops[i] is not None]
-            with _stage(self.timings, "look_encode"):
+                views = {i: render_look(self.client, self.points[i], self.table_z, self.config) for i in new}
+            with _stage(self.timings, "look_encode"):  # the robot's: occlusion checks, crops, one batch
+                crops = {i: crop_look(v, self.points[i], self.config) if (v := views[i]) is not None else None
+                         for i in new}
+                wanted = [i for i in new if crops[i] is not None]
                 found = self.encoder.embed_images([c for i in wanted if (c := crops[i]) is not None])
             for i in new:
                 self.seen[i] = None

@@ -74,7 +74,7 @@ from ..perception.extents import measure_extents
 from ..perception.observation import Observation
 from ..perception.roi import ROI, Region, box_iou
 from ..perception.segment import SegmentConfig, segment
-from .active_look import ActiveLook, ActiveLookConfig, standing_volume
+from .active_look import ActiveLook, ActiveLookConfig
 from .assets import object_catalog
 from .clearance import HeightMap, heights_around, heights_excluding
 from .env import SimEnv
@@ -688,9 +688,8 @@ def frame_look(
     before_render: Callable[[], None] | None = None,
 ) -> ActiveLook:
     """The active look for ``perception``'s frame: each ROI aimed at by its raised depth points."""
-    table_z = env.scene.layout.table_z
-    return ActiveLook(env.client, [standing_volume(perception.raised.within(r.roi.mask), table_z)
-                                   for r in perception.rois], encoder, config, before_render=before_render)
+    return ActiveLook(env.client, [perception.raised.within(r.roi.mask) for r in perception.rois],
+                      env.scene.layout.table_z, encoder, config, before_render=before_render)
 
 
 def grounding_rois(perception: ScenePerception) -> list[ROI]:
