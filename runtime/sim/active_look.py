@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .camera import Camera, render
+from .stages import timed_stage
 
 if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder, UInt8Image
@@ -203,15 +204,13 @@ class ActiveLook:
 
     def embeddings(self, indices: Sequence[int]) -> dict[int, npt.NDArray[np.float32] | None]:
         """The look's embedding of each ROI in ``indices`` (None: nothing to look at)."""
-        from .pipeline import _stage
-
         new = [i for i in dict.fromkeys(indices) if i not in self.seen]
         if new:
             if self.before_render is not None:
                 self.before_render()
-            with _stage(self.timings, "look_render"):  # simulator work: not robot time
+            with timed_stage(self.timings, "look_render"):  # simulator work: not robot time
                 views = {i: render_look(self.client, self.points[i], self.table_z, self.config) for i in new}
-            with _stage(self.timings, "look_encode"):  # the robot's: occlusion checks, crops, one batch
+            with timed_stage(self.timings, "look_encode"):  # the robot's: occlusion checks, crops, one batch
                 crops = {i: crop_look(v, self.points[i], self.config) if (v := views[i]) is not None else None
                          for i in new}
                 wanted = [i for i in new if crops[i] is not None]

@@ -178,13 +178,13 @@ def perceive_for_pick(
     from ..perception.segment import segment
     from .clearance import heights_around
     from .pipeline import (
-        _stage,
         iter_fallback_fitting,
         iter_fitting_with_refinements,
         raw_candidates,
         roi_colours,
         torch_threads,
     )
+    from .stages import timed_stage
 
     if config.grasp == "oracle" or config.rois == "oracle":
         raise ValueError("the robot's path has no oracle: use predicted ROIs and a grasp backend")
@@ -192,20 +192,20 @@ def perceive_for_pick(
         raise ValueError("the robot's lazy path does not implement the clearance preference yet "
                          "(ClearanceConfig.prefer); use perceive")
     single_threaded_blas()
-    with _stage(timings, "segment"):
+    with timed_stage(timings, "segment"):
         rois = segment(obs, config.segment).rois
     k = config.rgb_scale
     sharp = env.capture_rgb(k) if k > 1 else obs.rgb  # a render: simulator work, not timed
     fast_encoder = inference_encoder(encoder)
     with torch_threads(config.torch_threads):
-        with _stage(timings, "grasp_net"):
+        with timed_stage(timings, "grasp_net"):
             raw = raw_candidates(env.scene, obs, rois, [None] * len(rois), config, fused=True)
-        with _stage(timings, "encode"):
+        with timed_stage(timings, "encode"):
             crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
             embeddings, classes = encode_with_classes(fast_encoder, crops)
     table_z = env.scene.layout.table_z
     out: list[LazyROI] = []
-    with _stage(timings, "finger_checks"):
+    with timed_stage(timings, "finger_checks"):
         raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
         for i, roi in enumerate(rois):
             material = raised.within(roi.mask)  # [m, 3]

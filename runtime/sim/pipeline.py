@@ -87,6 +87,7 @@ from .oracle import gt_rois, oracle_grasp
 from .refine import RefineConfig
 from .retry import Attempt, RetryConfig, hand_empty, return_home, same_grasp
 from .scene import Scene, SceneSpec
+from .stages import timed_stage
 from .surface import RaisedPoints, object_centre
 
 FloatArray = npt.NDArray[np.float64]
@@ -590,19 +591,6 @@ def _three_d(
 ROBOT_STAGES = ("segment", "grasp_net", "encode", "grasp_checks")
 
 
-@contextlib.contextmanager
-def _stage(timings: dict[str, float] | None, name: str) -> Iterator[None]:
-    """Add the block's wall time to ``timings[name]`` (reporting only: no result depends on it)."""
-    if timings is None:
-        yield
-        return
-    import time
-
-    t0 = time.perf_counter()
-    try:
-        yield
-    finally:
-        timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
 
 
 def perceive(
@@ -630,21 +618,21 @@ def perceive(
     truth = gt_rois(obs, scene)
     target_body = scene.target.body_id
     target_gt = next((r for r in truth if r.label == target_body), None)
-    with _stage(timings, "segment"):
+    with timed_stage(timings, "segment"):
         rois = raster_order(truth) if config.rois == "oracle" else segment(obs, config.segment).rois
     owners = [roi.label if config.rois == "oracle" else majority_body(obs, roi.mask, bodies)
               for roi in rois]
     k = config.rgb_scale
     sharp = env.capture_rgb(k) if k > 1 else obs.rgb  # a render: simulator work, not timed
     with torch_threads(config.torch_threads):
-        with _stage(timings, "grasp_net"):
+        with timed_stage(timings, "grasp_net"):
             raw = raw_candidates(scene, obs, rois, owners, config)
-        with _stage(timings, "encode"):
+        with timed_stage(timings, "encode"):
             crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
             embeddings, classes = encode_with_classes(encoder, crops)
     table_z = scene.layout.table_z
     perceived: list[PerceivedROI] = []
-    with _stage(timings, "grasp_checks"):
+    with timed_stage(timings, "grasp_checks"):
         raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)
         clear = config.pick.clearance
         surfaces = [_Surfaces(raised.within(roi.mask), table_z, heights_around(raised, roi.mask, table_z, clear))
