@@ -102,16 +102,20 @@ def look_camera(points: FloatArray, config: ActiveLookConfig, base: Camera | Non
     return cam.scaled(config.scale)
 
 
+def camera_frame(points: FloatArray, cam_to_world: FloatArray) -> FloatArray:
+    """World ``points`` ``[m, 3]`` in the frame of a camera posed at ``cam_to_world`` (OpenCV)."""
+    world_to_cam = np.linalg.inv(cam_to_world)
+    return np.asarray(points @ world_to_cam[:3, :3].T + world_to_cam[:3, 3], dtype=np.float64)
+
+
 def projected_box(camera: Camera, points: FloatArray) -> tuple[float, float, float, float] | None:
     """Pixel box ``(x, y, w, h)`` of ``points`` seen by ``camera`` (None: none in front of it)."""
-    world_to_cam = np.linalg.inv(camera.cam_to_world())
-    cam = points @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
+    cam = camera_frame(points, camera.cam_to_world())
     cam = cam[cam[:, 2] > camera.near]
     if len(cam) == 0:
         return None
     k = camera.intrinsics
-    u = k.fx * cam[:, 0] / cam[:, 2] + k.cx
-    v = k.fy * cam[:, 1] / cam[:, 2] + k.cy
+    u, v = k.project(cam).T
     x0, x1 = float(np.clip(u.min(), 0, k.width - 1)), float(np.clip(u.max(), 0, k.width - 1))
     y0, y1 = float(np.clip(v.min(), 0, k.height - 1)), float(np.clip(v.max(), 0, k.height - 1))
     return x0, y0, x1 - x0 + 1.0, y1 - y0 + 1.0
@@ -121,12 +125,10 @@ def occluded_share(view: Observation, top: FloatArray, config: ActiveLookConfig)
     """Share of an ROI's ``top`` points (its overhead depth points) hidden in the look ``view`` by
     a surface outside the ROI's own footprint (its points' xy box grown by ``self_margin``): a
     bowl's front rim hiding its inside is the ROI itself; a box between it and the camera is not."""
-    world_to_cam = np.linalg.inv(view.cam_to_world)
-    cam = top @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
+    cam = camera_frame(top, view.cam_to_world)
     k = view.intrinsics
     z = np.where(cam[:, 2] > 1e-6, cam[:, 2], np.nan)
-    u = np.round(k.fx * cam[:, 0] / z + k.cx)
-    v = np.round(k.fy * cam[:, 1] / z + k.cy)
+    u, v = np.round(k.project(np.column_stack([cam[:, :2], z]))).T
     inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
     if not inside.any():
         return 1.0
