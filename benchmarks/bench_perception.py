@@ -8,7 +8,8 @@ The stages are timed inside the robot's own path, ``sim.choose.perceive_for_pick
 * ``segment``: class-agnostic RGB-D segmentation into ROIs;
 * ``grasp_net``: one grasp-network pass over the crop holding every ROI, then per-ROI peaks;
 * ``encode``: ConSE embeddings of the ROI crops (one batched pass);
-* ``finger_checks``: the finger check of every grasp candidate;
+* ``finger_checks``: the finger check of every grasp candidate, each ROI's extents and (with the
+  cavity cue, the default since 2026-12-05; ``--no-cavity-cue``: without) its open cavity;
 * ``ground_ik``: ``Grounder.ground`` of the CRAFT-E bundle plus the pick's IK plan of the chosen
   grasp only (again if it is unreachable), ``ground_lazily``, then the chosen pick's clearance
   check and, when its approach is blocked, the search for a clear spot (``relocate_choice``).
@@ -174,6 +175,8 @@ def main() -> None:
     parser.add_argument("--active-look", action="store_true",
                         help="with the opt-in active look (sim/active_look.py): its encoder pass is the "
                              "look_encode stage, its renders are left out")
+    parser.add_argument("--no-cavity-cue", action="store_true",
+                        help="ground without the cavity cue (and measure no cavities), as before 2026-12-05")
     parser.add_argument("--no-grasp-fallback", action="store_true",
                         help="without the antipodal fallback (sim/fallback.py): what it costs")
     args = parser.parse_args()
@@ -188,7 +191,9 @@ def main() -> None:
     enc = default_encoder(args.threads)
     fast_enc = inference_encoder(enc)  # the robot's encoder (perceive_for_pick): the floor's too
     runnable, _ = load_methods(select_methods(["CRAFT-E"]), enc.text_encoder_id)
-    grounder = build_grounders(runnable, GroundingSettings(), sim_vocabulary())["CRAFT-E"]
+    grounder = build_grounders(runnable, GroundingSettings(cavity_cue=False if args.no_cavity_cue else None),
+                               sim_vocabulary())["CRAFT-E"]
+    cavity = grounder.cavity_cue_active  # measured in the finger_checks stage when the grounder reads it
     stages = {k: 0.0 for k in ("segment", "grasp_net", "encode", "finger_checks", "ground_ik")
               + (("look_encode",) if args.active_look else ())}
     floor = {"grasp_net_frame": 0.0, "encode": 0.0}
@@ -207,7 +212,7 @@ def main() -> None:
             env.robot.reset_home()
             obs = env.capture()
             sharp = env.capture_rgb(cfg.rgb_scale)
-            warm = perceive_for_pick(env, enc, cfg, obs)  # warm-up, untimed
+            warm = perceive_for_pick(env, enc, cfg, obs, cavity=cavity)  # warm-up, untimed
             # ... and the grounding with its pick check once: the first relocation check of a
             # process builds the arm links' hull samples (``sim/arm_hull.py``, ~0.2 s, once)
             warm_made: PlanCache = {}
@@ -216,7 +221,7 @@ def main() -> None:
             if warm_choice.grasp is not None and warm_choice.grounding.chosen is not None:
                 relocate_choice(env, cfg, obs, warm[warm_choice.grounding.chosen.index], warm_choice.grasp, warm_made)
             eager_t: dict[str, float] = {}
-            eager = perceive(env, enc, cfg, obs, timings=eager_t)  # the evaluation's path
+            eager = perceive(env, enc, cfg, obs, timings=eager_t, cavity=cavity)  # the evaluation's path
             eager_choice = (frame_look(env, eager, enc, cfg.active_look).ground(grounder, spec.verb,
                                                                                  grounding_rois(eager))[0].chosen
                             if args.active_look else grounder.ground(spec.verb, grounding_rois(eager)).chosen)
@@ -229,7 +234,7 @@ def main() -> None:
                     floor_net, floor_enc = _time_floor(cfg, obs, masks, crops, fast_enc, args.threads)
                 timings: dict[str, float] = {}
                 frame = dataclasses.replace(obs)  # a new frame: its 3D points are computed in the timed stages
-                lazy = perceive_for_pick(env, enc, cfg, frame, timings=timings)
+                lazy = perceive_for_pick(env, enc, cfg, frame, timings=timings, cavity=cavity)
                 t0 = time.perf_counter()
                 made: PlanCache = {}  # the IK plans of this scene, reused by the relocation check
                 choice = ground_lazily(looking(grounder, env, cfg, lazy, enc, timings), spec.verb, lazy,
@@ -294,7 +299,7 @@ def main() -> None:
             "floor": {k: round(v / n, 4) for k, v in floor.items()}, "scenes": len(specs),
             "repeats": args.repeats, "order": "alternating (robot first, then floor first)",
             "rois_per_scene": rois_total / n, "torch_threads": args.threads,
-            "grasp_fallback": cfg.uses_fallback, "active_look": args.active_look,
+            "grasp_fallback": cfg.uses_fallback, "active_look": args.active_look, "cavity_cue": cavity,
             "torch_version": torch.__version__, "cpus": os.cpu_count(), "cpu_model": _cpu_model(),
             "image_encoder": fast_enc.id,
             "load_average": [round(load[0], 2), round(load_after[0], 2)],

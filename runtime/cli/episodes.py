@@ -88,6 +88,13 @@ LookalikesOpt = Annotated[bool | None, typer.Option(
          "make CRAFT-E choose better on the dev scenes, docs/recognition.md); --lookalikes requires look-alikes "
          "for every vocabulary object.",
     show_default=False)]
+CavityCueOpt = Annotated[bool | None, typer.Option(
+    "--cavity-cue/--no-cavity-cue",
+    help="Weigh p(o|r) by whether each ROI shows an open hollow in the depth (its inside 2 cm or more below its "
+         "rim) against the KB's 'is concave' weights (grounding/cavity_cue.py). Default: on for every bundle whose "
+         "graph defines that property (CRAFT-E's; direct-LLM and ConceptNet ground without it); --no-cavity-cue "
+         "reproduces runs from before the cue.",
+    show_default=False)]
 RelocateOpt = Annotated[bool, typer.Option(
     help="Before a pick, move the chosen grasp a few cm along its object (or turn it) when the overhead depth "
          "shows its approach blocked, keeping it when no nearby spot is clear (sim/relocate.py); "

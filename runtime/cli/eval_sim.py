@@ -54,6 +54,7 @@ def eval_sim(
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
+    cavity_cue: ep.CavityCueOpt = None,
     classifier: ep.ClassifierOpt = None,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
@@ -71,7 +72,7 @@ def eval_sim(
     ep.check_labels(labels)
     ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
-                                  colour_cue=colour_cue, lookalikes=lookalikes)
+                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,

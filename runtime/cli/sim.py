@@ -46,6 +46,7 @@ def demo(
     size_cue: ep.SizeCueOpt = None,
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
+    cavity_cue: ep.CavityCueOpt = None,
     beta: BetaOpt = None,
     gamma: GammaOpt = None,
 ) -> None:
@@ -107,10 +108,14 @@ def demo(
         weight_b, weight_g = energy_weights(beta, gamma)
         spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)
         grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,
-                                                                        lookalikes=lookalikes),
+                                                                        lookalikes=lookalikes,
+                                                                        cavity_cue=cavity_cue),
                                     sim_vocabulary())
     except CueUnavailableError as exc:
         fail(str(exc))
+    if cavity_cue and not grounders[method].cavity_cue_active:
+        err.print(f"note: --cavity-cue: the bundle {bundle_path} does not define 'is concave' for every object "
+                  "of the sim vocabulary; grounding without the cue", highlight=False, markup=False)
     err.print(f"scene: {spec.scene.verb!r}, target {spec.scene.target} among "
               f"{', '.join(spec.scene.distractors)} (layout seed {spec.scene.seed})", highlight=False, markup=False)
     with SimEnv(env_config) as env:

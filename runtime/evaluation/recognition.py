@@ -58,6 +58,8 @@ class View:
     extents_m: tuple[float, float, float] | None = None
     #: colour shares of the same raised pixels in the overhead colour image (``perception/colours.py``)
     colours: tuple[float, ...] | None = None
+    #: how far the asset's inside lies below its rim in the overhead depth (``perception/cavity.py``)
+    cavity_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,7 @@ class Setting:
     colour_cue: bool = False
     lookalike_cue: bool = False
     classifier: str = "efficientnet-lite0"
+    cavity_cue: bool = False
 
 
 _LITE1 = "efficientnet-lite1"
@@ -103,6 +106,9 @@ SETTINGS: tuple[Setting, ...] = (
             size_cue=True, classifier=_LITE1),
     Setting("Lite1, overhead + active look + size cue", "Lite1, mean embedding of the 2x fit view and the look, "
             "size cue", "fused", "fit", size_cue=True, classifier=_LITE1),
+    Setting("Lite1, 2x fit + size + cavity cue", "Lite1, 2x, fit; the size cue and the open cavity in the depth "
+            "weighed against the KB's 'is concave' (grounding/cavity_cue.py)", "2x", "fit", size_cue=True,
+            classifier=_LITE1, cavity_cue=True),
 )
 
 
@@ -117,6 +123,7 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
     import pybullet as p
 
     from ..encoders.image import crop_box
+    from ..perception.cavity import measure_cavity
     from ..perception.colours import measure_colours
     from ..perception.extents import measure_extents
     from ..sim.assets import object_catalog
@@ -159,7 +166,8 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
                 out.append(View(asset, catalog[asset].name, v, crop_box(obs.rgb, box),
                                 crop_box(rgb2, tuple(2 * x for x in box)), crop_look,
                                 measure_extents(world[surface], layout.table_z),
-                                measure_colours(obs.rgb[surface])))
+                                measure_colours(obs.rgb[surface]),
+                                measure_cavity(world[..., 2] - layout.table_z, surface)))
             if progress is not None:
                 progress(n + 1, len(assets))
     finally:
@@ -196,9 +204,11 @@ class RecognitionReport:
 def _ranks(grounder: Grounder, emb: npt.NDArray[np.float32], names: Sequence[str],
            extents: npt.NDArray[np.float64] | None = None,
            colours: npt.NDArray[np.float64] | None = None,
-           classes: Sequence[ClassTop | None] | None = None) -> npt.NDArray[np.int64]:
+           classes: Sequence[ClassTop | None] | None = None,
+           cavities: npt.NDArray[np.float64] | None = None) -> npt.NDArray[np.int64]:
     """Rank (0 = top) of each view's true name under p(o|r)."""
-    p = grounder.energies(grounder.verbs[0], emb, extents=extents, colours=colours, classes=classes).p_obj  # [N, O]; the verb does not enter p
+    p = grounder.energies(grounder.verbs[0], emb, extents=extents, colours=colours, classes=classes,
+                          cavities=cavities).p_obj  # [N, O]; the verb does not enter p
     cols = [grounder.vocabulary.index(n) for n in names]
     true = p[np.arange(len(names)), cols]
     return np.asarray((p > true[:, None]).sum(axis=1), dtype=np.int64)
@@ -221,12 +231,13 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
-    grounders = {(s.size_cue, s.colour_cue, s.lookalike_cue): Grounder(bundle, GroundingSettings(
-        vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue))
-        for s in SETTINGS}
-    grounder = grounders[(False, False, False)]
+    grounders = {(s.size_cue, s.colour_cue, s.lookalike_cue, s.cavity_cue): Grounder(bundle, GroundingSettings(
+        vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue,
+        cavity_cue=s.cavity_cue)) for s in SETTINGS}
+    grounder = grounders[(False, False, False, False)]
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
+    cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in rendered])
     names = [v.name for v in rendered]
     encoders: dict[tuple[str, str, int], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
@@ -251,9 +262,9 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
                 emb, classes = encode_with_classes(enc, [getattr(v, attr) for v in rendered])
                 rois = len(rendered)
             ms = 1000 * (time.perf_counter() - start) / rois
-            ranks = _ranks(grounders[(s.size_cue, s.colour_cue, s.lookalike_cue)], emb, names,
+            ranks = _ranks(grounders[(s.size_cue, s.colour_cue, s.lookalike_cue, s.cavity_cue)], emb, names,
                            extents if s.size_cue else None, colours if s.colour_cue else None,
-                           classes if s.lookalike_cue else None)
+                           classes if s.lookalike_cue else None, cavities if s.cavity_cue else None)
             rows.append({"setting": s.name, "description": s.description, "source": s.source,
                          "preprocess": s.preprocess, "tta": s.tta, "encoder_id": enc.id,
                          "top1": round(float(np.mean(ranks == 0)), 6),

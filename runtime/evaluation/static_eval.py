@@ -214,6 +214,7 @@ class StaticROI:
     extents_m: tuple[float, float, float] | None = None  # from depth, for the size cue
     colours: tuple[float, ...] | None = None  # colour shares of its raised pixels, for the colour cue
     classes: tuple[tuple[int, float], ...] | None = None  # top ImageNet classes, for the look-alike cue
+    cavity_m: float | None = None  # how far its inside lies below its rim, for the cavity cue
 
 
 @dataclass(frozen=True)
@@ -239,6 +240,7 @@ def render_scene(
     from ..encoders.conse import encode_with_classes
     from ..encoders.image import crop_box
     from ..grasp.predict import predict_grasps_rois
+    from ..perception.cavity import measure_cavity
     from ..perception.colours import measure_colours
     from ..perception.extents import measure_extents
     from ..perception.segment import segment
@@ -275,22 +277,26 @@ def render_scene(
     pred_ext = [measure_extents(world[r.mask & raised], table_z) for r in predicted]
     gt_col = [measure_colours(obs.rgb[r.mask & raised]) for r in truth]
     pred_col = [measure_colours(obs.rgb[r.mask & raised]) for r in predicted]
+    height = world[..., 2] - table_z
+    gt_cav = [measure_cavity(height, r.mask & raised) for r in truth]
+    pred_cav = [measure_cavity(height, r.mask & raised) for r in predicted]
 
     def fbox(box: tuple[int, int, int, int]) -> tuple[float, float, float, float]:
         return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
 
     settings: dict[str, list[StaticROI]] = {
         "gt/gt": [StaticROI(fbox(r.box_xywh), r.mask, tuple(rects.get(r.label, [])) if r.label is not None
-                            else (), gt_emb[i], gt_ext[i], gt_col[i], gt_cls[i]) for i, r in enumerate(truth)],
+                            else (), gt_emb[i], gt_ext[i], gt_col[i], gt_cls[i], gt_cav[i])
+                   for i, r in enumerate(truth)],
         "gt/predicted": [StaticROI(fbox(r.box_xywh), r.mask,
                                    tuple(g for g in rects.get(owner, []) if rect_centre_on(g, r.mask))
                                    if owner is not None else (), pred_emb[i], pred_ext[i], pred_col[i],
-                                   pred_cls[i])
+                                   pred_cls[i], pred_cav[i])
                          for i, (r, owner) in enumerate(zip(predicted, owners, strict=True))],
     }
     for b in backends:
         settings[f"{b}/predicted"] = [StaticROI(fbox(r.box_xywh), r.mask, net[b][i], pred_emb[i], pred_ext[i],
-                                                pred_col[i], pred_cls[i])
+                                                pred_col[i], pred_cls[i], pred_cav[i])
                                       for i, r in enumerate(predicted)]
     return StaticScene(spec, obs.rgb, target.box_xywh if target is not None else None,
                        tuple(rects.get(target_body, [])), settings)
@@ -315,11 +321,12 @@ def _perturbed(
                        for g, s in zip(r.grasps, scores, strict=True))
         box = r.box if level.box_frac == 0 else tuple(float(v) for v in rb.jitter_box(r.box, level.box_frac, rng, (w, h)))
         out.append(StaticROI(box, r.mask, grasps, r.embedding, r.extents_m, r.colours,  # type: ignore[arg-type]
-                             r.classes))
+                             r.classes, r.cavity_m))
     if level.box_frac:
         crops = [crop_box(rgb, r.box) for r in out]
         emb, cls = encode_with_classes(encoder, crops)
-        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m, r.colours, cls[i]) for i, r in enumerate(out)]
+        out = [StaticROI(r.box, r.mask, r.grasps, emb[i], r.extents_m, r.colours, cls[i], r.cavity_m)
+               for i, r in enumerate(out)]
     return out
 
 
@@ -499,7 +506,8 @@ def evaluate_static(
                              "grasp": sum(c["target_grasp"] for c in cells) / n},
                     settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma,
                               "size_cue": grounders[spec_m.name].size_cue_active,
-                              **({"colour_cue": True} if grounders[spec_m.name].colour_cue_active else {})}))
+                              **({"colour_cue": True} if grounders[spec_m.name].colour_cue_active else {}),
+                              **({"cavity_cue": True} if grounders[spec_m.name].cavity_cue_active else {})}))
     config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
@@ -542,5 +550,5 @@ def _static_record(
 def _grounding_rois(rois: list[StaticROI]) -> list[ROI]:
     return [ROI(box_xywh=r.box, grasp_scores=[g.quality for g in r.grasps], grasps=list(r.grasps),
                 image_embedding=r.embedding, mask=r.mask, label=f"roi{i}", extents_m=r.extents_m,
-                colours=r.colours, classes=r.classes)
+                colours=r.colours, classes=r.classes, cavity_m=r.cavity_m)
             for i, r in enumerate(rois)]

@@ -33,6 +33,12 @@ from ..encoders.conse import ClassTop, imagenet_class_names
 from ..kb.bundle import Bundle, PathStep
 from ..kb.colours import COLOUR_TERMS
 from ..perception.roi import ROI
+from .cavity_cue import (
+    CONCAVE_PROPERTY,
+    cavity_log_likelihood,
+    cavity_table,
+    with_cavity_cue,
+)
 from .colour_cue import (
     ColourCueUnavailableError,
     colour_log_likelihood,
@@ -148,6 +154,9 @@ class Grounding:
     #: p(o | r) weighed some ROI's ImageNet classes against the objects' look-alikes
     #: (``lookalike_cue.py``)
     lookalike_cue_used: bool = False
+    #: p(o | r) weighed some ROI's open cavity against the objects' "is concave" weights
+    #: (``cavity_cue.py``)
+    cavity_cue_used: bool = False
 
     @property
     def abstained(self) -> bool:
@@ -173,6 +182,8 @@ class Grounding:
                 "hypotheses": [{"object": h.name, "p": h.probability} for h in r.hypotheses],
                 "extents_cm": None if r.roi.extents_m is None else [round(100 * v, 1) for v in r.roi.extents_m],
                 "colours": None if r.roi.colours is None else _named_colours(r.roi.colours),
+                **({"cavity_cm": None if r.roi.cavity_m is None else round(100 * r.roi.cavity_m, 1)}
+                   if self.cavity_cue_used else {}),
                 "paths": [{"property": p.prop, "object": p.obj, "w_vp": p.w_vp, "w_po": p.w_po,
                            "records": list(p.provenance)} for p in r.paths],
             }
@@ -183,6 +194,7 @@ class Grounding:
             "size_cue_used": self.size_cue_used,
             "colour_cue_used": self.colour_cue_used,
             **({"lookalike_cue_used": True} if self.lookalike_cue_used else {}),
+            **({"cavity_cue_used": True} if self.cavity_cue_used else {}),
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
             "abstained": self.abstained,
@@ -200,7 +212,8 @@ class Grounding:
                  f"gamma={st.gamma:g}, T={st.temperature:g}, E_aff {st.energy_form}/{st.aff_mode}"
                  f"{', scaled per verb' if st.aff_norm == 'verb-best' else ''}"
                  f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''}"
-                 f"{', look-alike cue' if self.lookalike_cue_used else ''})"]
+                 f"{', look-alike cue' if self.lookalike_cue_used else ''}"
+                 f"{', cavity cue' if self.cavity_cue_used else ''})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -238,6 +251,9 @@ class Grounding:
             seen = ", ".join(f"{names[c]!r} {p:.2f}" for c, p in best.roi.classes[:3])
             lines.append(f"the image classifier saw: {seen} (the look-alike cue weighed them against "
                          "the classes each object's photos get)")
+        if self.cavity_cue_used and best.roi.cavity_m is not None:
+            lines.append(f"open cavity from depth: {100 * best.roi.cavity_m:.1f} cm below the rim (the cavity "
+                         f"cue weighed it against each object's {CONCAVE_PROPERTY!r} weight)")
         if best.inference is not None:
             lines.append(best.inference.describe())
         if best.paths:
@@ -395,6 +411,8 @@ class Grounder:
             raise LookalikeCueUnavailableError(self._uncovered(
                 "--lookalikes", "look-alike classes", names, bundle.lookalikes, "object_lookalike",
                 "the look-alike cue"))
+        # a property check: only a bundle whose graph defines the property takes it (see cavity_cue.py)
+        self._cavity_table = cavity_table(names, bundle) if self.settings.cavity_cue is not False else None
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
         if self.settings.aff_norm == "verb-best":  # each verb by its best object in the bundle itself
             self._eaff = scale_negative(self._eaff, verb_best_divisor(full))
@@ -602,6 +620,12 @@ class Grounder:
         return self._lookalike_table is not None
 
     @property
+    def cavity_cue_active(self) -> bool:
+        """Whether ``p(o | r)`` weighs the ROIs' open cavities (on, and the bundle's graph says
+        which vocabulary objects are hollow)."""
+        return self._cavity_table is not None
+
+    @property
     def temperature(self) -> float:
         return self.settings.temperature
 
@@ -626,21 +650,24 @@ class Grounder:
     def energies(self, verb: str, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None = None,
                  p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
                  colours: npt.NDArray[Any] | None = None,
-                 classes: Sequence[ClassTop | None] | None = None) -> EnergyTerms:
+                 classes: Sequence[ClassTop | None] | None = None,
+                 cavities: npt.NDArray[Any] | None = None) -> EnergyTerms:
         """The three energies for ``N`` ROIs at once: ``embeddings`` ``[N, d]``, ``grasp_max``
         ``[N]`` best grasp score per ROI (``None``: no grasp term, E_grasp = 0). ``p_obj``
         ``[N, O]`` over ``vocabulary`` replaces the perceived ``p(o | r)`` (diagnostics, e.g. the
         sim testbed's knowledge-vs-perception split with p set to the true class). ``extents``
         ``[N, 3]`` (metres, longest first; NaN rows: unmeasured) feed the size cue when it is on,
         ``colours`` ``[N, 11]`` (shares per colour term; NaN rows: unmeasured) the colour cue and
-        ``classes`` (each ROI's top ImageNet classes, or None) the look-alike cue."""
+        ``classes`` (each ROI's top ImageNet classes, or None) the look-alike cue and ``cavities``
+        ``[N]`` (metres; NaN: unmeasured) the cavity cue."""
         return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj, extents,
-                              colours, classes)
+                              colours, classes, cavities)
 
     def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None,
                   p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
                   colours: npt.NDArray[Any] | None = None,
-                  classes: Sequence[ClassTop | None] | None = None) -> EnergyTerms:
+                  classes: Sequence[ClassTop | None] | None = None,
+                  cavities: npt.NDArray[Any] | None = None) -> EnergyTerms:
         emb = _unit_rows(embeddings)  # [N, d]
         if emb.ndim != 2 or emb.shape[1] != self.dim:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
@@ -653,6 +680,8 @@ class Grounder:
                 p = with_colour_cue(p, colour_log_likelihood(colours, self._colour_table))
             if self._lookalike_table is not None and classes is not None:
                 p = with_lookalike_cue(p, lookalike_log_likelihood(classes, self._lookalike_table))
+            if self._cavity_table is not None and cavities is not None:
+                p = with_cavity_cue(p, cavity_log_likelihood(cavities, self._cavity_table))
         else:
             p = np.asarray(p_obj, dtype=np.float32)
             if p.shape != (len(emb), len(self.vocabulary)):
@@ -686,7 +715,7 @@ class Grounder:
             else:
                 usable.append(i)
         ranked: list[RankedROI] = []
-        size_cue_used = colour_cue_used = lookalike_cue_used = False
+        size_cue_used = colour_cue_used = lookalike_cue_used = cavity_cue_used = False
         if usable:
             emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
@@ -702,7 +731,11 @@ class Grounder:
             colour_cue_used = colours is not None and bool(np.isfinite(colours).all(axis=1).any())
             classes = None if self._lookalike_table is None else [rois[i].classes for i in usable]
             lookalike_cue_used = classes is not None and any(classes)
-            terms = self._energies(plan, emb, gmax, extents=extents, colours=colours, classes=classes)
+            cavities = None if self._cavity_table is None else np.array(
+                [np.nan if rois[i].cavity_m is None else rois[i].cavity_m for i in usable], dtype=np.float64)  # [N]
+            cavity_cue_used = cavities is not None and bool(np.isfinite(cavities).any())
+            terms = self._energies(plan, emb, gmax, extents=extents, colours=colours, classes=classes,
+                                   cavities=cavities)
             top = _top_k(terms.p_obj, self.top_k_hypotheses)  # [N, k]
             top_p = np.take_along_axis(terms.p_obj, top, axis=1).tolist()  # python floats, once
             top_i = top.tolist()
@@ -725,7 +758,7 @@ class Grounder:
             open_vocab_used=plan.open_vocab, nearest_verbs=list(plan.nearest),
             request=plan.request, property_names=self.properties if plan.request is not None else [],
             notes=self._open_world_notes(plan, ranked), size_cue_used=size_cue_used,
-            colour_cue_used=colour_cue_used, lookalike_cue_used=lookalike_cue_used,
+            colour_cue_used=colour_cue_used, lookalike_cue_used=lookalike_cue_used, cavity_cue_used=cavity_cue_used,
         )
 
     def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:

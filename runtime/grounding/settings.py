@@ -91,6 +91,12 @@ class GroundingSettings(BaseModel):
     #: error); ``None``/``False``: off. It names rendered objects better but did not make CRAFT-E
     #: choose better on the dev scenes (``docs/recognition.md``).
     lookalikes: bool | None = None
+    #: p(o | r) also weighs each ROI's open cavity, measured from depth, against the knowledge
+    #: base's "is concave" weights (``grounding/cavity_cue.py``). ``None`` (default) and ``True``:
+    #: on for every bundle whose graph defines that property and holds every vocabulary name (the
+    #: others, direct-LLM's and ConceptNet's, ground without it), and only ROIs that carry a
+    #: measured cavity are affected; ``False``: off (results stored before 2026-12-05's cue).
+    cavity_cue: bool | None = None
 
     @field_validator("temperature", mode="before")
     @classmethod
@@ -143,4 +149,6 @@ class GroundingSettings(BaseModel):
             out["colour_cue"] = self.colour_cue
         if self.lookalikes is not None:
             out["lookalikes"] = self.lookalikes
+        if self.cavity_cue is not None:
+            out["cavity_cue"] = self.cavity_cue
         return out

@@ -46,6 +46,9 @@ class ROI:
     #: the share of its pixels in each basic colour term (``perception/colours.py``, the order of
     #: ``kb.colours.COLOUR_TERMS``); ``None``: not measured, the colour cue is then neutral
     colours: tuple[float, ...] | None = None
+    #: how far its inside lies below its rim, metres, from depth (``perception/cavity.py``; the
+    #: cavity cue); ``None``: not measured, the cavity cue is then neutral
+    cavity_m: float | None = None
     #: the image classifier's most probable ImageNet classes on its crop, (class index,
     #: probability) (``encoders.conse.encode_with_classes``); ``None``: not measured (another
     #: encoder), the look-alike cue is then neutral

@@ -80,6 +80,7 @@ class LazyROI:
     #: the fallback's fitting grasps, best first, computed when called (``sim/fallback.py``): used
     #: only when no grasp of ``unchecked`` fits; None once called, or with no fallback
     fallback: Callable[[], Iterator[Any]] | None = None
+    cavity_m: float | None = None  # how far its inside lies below its rim, for the cavity cue
 
     @property
     def pending_fallback(self) -> bool:
@@ -108,14 +109,14 @@ class LazyROI:
         if self.pending_fallback:
             return ROI(box_xywh=self.box_xywh, grasp_scores=[1.0], grasps=[None],
                        image_embedding=self.embedding, label=label, extents_m=self.extents_m,
-                       colours=self.colours, classes=self.classes)
+                       colours=self.colours, classes=self.classes, cavity_m=self.cavity_m)
         self._checked_through(self.next_index)
         rest = self.next_index < len(self.fitting)
         return ROI(box_xywh=self.box_xywh,
                    grasp_scores=[self.scores[self.next_index]] if rest else [],
                    grasps=[self.fitting[self.next_index]] if rest else [],
                    image_embedding=self.embedding, label=label, extents_m=self.extents_m,
-                   colours=self.colours, classes=self.classes)
+                   colours=self.colours, classes=self.classes, cavity_m=self.cavity_m)
 
 
 @dataclass(frozen=True)
@@ -158,7 +159,7 @@ def ground_lazily(
 
 def perceive_for_pick(
     env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation,
-    *, timings: dict[str, float] | None = None, colours: bool = False,
+    *, timings: dict[str, float] | None = None, colours: bool = False, cavity: bool = False,
 ) -> list[LazyROI]:
     """What the robot computes before grounding: ROIs, one grasp-network pass, the crops'
     embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
@@ -168,7 +169,8 @@ def perceive_for_pick(
     Both networks run as their inference rewrites (``grasp.fused``, ``encoders.fused``: the
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
     evaluation's path, keeps the checkpoints' layer layout so published results reproduce.
-    ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue).
+    ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue);
+    ``cavity``: each ROI's open cavity (the opt-in cavity cue's).
     Sets this process's numpy BLAS to one thread (``runtime/blas.py``: its spinning threads
     slow torch)."""
     from ..blas import single_threaded_blas
@@ -181,6 +183,7 @@ def perceive_for_pick(
         iter_fallback_fitting,
         iter_fitting_with_refinements,
         raw_candidates,
+        roi_cavity,
         roi_colours,
         torch_threads,
     )
@@ -217,7 +220,8 @@ def perceive_for_pick(
                                unchecked=iter_fitting_with_refinements(raw[i], material, obs, table_z, config),
                                mask=roi.mask, material=material, raised=raised, raw=raw[i], region=roi,
                                fallback=(partial(iter_fallback_fitting, obs, roi, material, table_z, config)
-                                         if config.uses_fallback else None)))
+                                         if config.uses_fallback else None),
+                               cavity_m=roi_cavity(obs, raised.mask, roi, table_z) if cavity else None))
     return out
 
 

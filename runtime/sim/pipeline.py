@@ -69,6 +69,7 @@ import pybullet as p
 from ..encoders.image import ImageEncoder
 from ..grasp.geometry import Grasp2D, TopDownGrasp, pose_to_rect, rect_to_pose
 from ..grounding.grounder import Grounder, Grounding, RankedROI
+from ..perception.cavity import measure_cavity
 from ..perception.colours import measure_colours
 from ..perception.extents import measure_extents
 from ..perception.observation import Observation
@@ -231,6 +232,8 @@ class PerceivedROI:
     colours: tuple[float, ...] | None = None
     #: the classifier's top ImageNet classes on its crop (``encode_with_classes``; the look-alike cue)
     classes: tuple[tuple[int, float], ...] | None = None
+    #: how far its inside lies below its rim, metres (``perception/cavity.py``; the cavity cue)
+    cavity_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -467,6 +470,14 @@ def roi_colours(rgb: npt.NDArray[np.uint8], raised: BoolMask, roi: Region) -> tu
     return measure_colours(rgb[box][roi.mask[box] & raised[box]])
 
 
+def roi_cavity(obs: Observation, raised: BoolMask, roi: Region, table_z: float) -> float | None:
+    """The ROI's open cavity (``perception/cavity.py``) over its raised pixels, the object's own
+    surface as the grasp checks see it."""
+    x, y, w, h = roi.box_xywh
+    box = (slice(y, y + h), slice(x, x + w))
+    return measure_cavity(obs.world_z()[box] - table_z, roi.mask[box] & raised[box])
+
+
 @dataclass(frozen=True)
 class _Surfaces:
     """Depth points a grasp check needs: one object's surface above the table."""
@@ -596,7 +607,7 @@ ROBOT_STAGES = ("segment", "grasp_net", "encode", "grasp_checks")
 def perceive(
     env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation | None = None,
     *, timings: dict[str, float] | None = None, exclude: Callable[[TopDownGrasp], bool] | None = None,
-    colours: bool = False,
+    colours: bool = False, cavity: bool = False,
 ) -> ScenePerception:
     """Capture (unless ``obs`` is given), find ROIs and grasps, check them, embed the crops.
 
@@ -604,7 +615,8 @@ def perceive(
     given, receives the wall time of the robot-side stages (``ROBOT_STAGES``; rendering and the
     simulator's ground truth excluded) for ``benchmarks/bench_perception.py``. ``exclude`` marks
     grasps grounding must not use (``retry``: those that already failed). ``colours``: measure
-    each ROI's colour shares (only a grounder with the opt-in colour cue reads them). Sets this
+    each ROI's colour shares (only a grounder with the opt-in colour cue reads them); ``cavity``:
+    each ROI's open cavity (the opt-in cavity cue's). Sets this
     process's numpy BLAS to one thread (``runtime/blas.py``: its spinning threads slow torch).
     """
     from ..blas import single_threaded_blas
@@ -642,12 +654,13 @@ def perceive(
                    for i, s in enumerate(surfaces)]
         extents = [measure_extents(s.material, table_z) for s in surfaces]
         shares = [roi_colours(obs.rgb, raised.mask, roi) if colours else None for roi in rois]
+        cavities = [roi_cavity(obs, raised.mask, roi, table_z) if cavity else None for roi in rois]
     for i, (roi, body) in enumerate(zip(rois, owners, strict=True)):
         candidates, usable = checked[i]
         iou = box_iou(roi.box_xywh, target_gt.box_xywh) if target_gt is not None else 0.0
         perceived.append(PerceivedROI(roi, tuple(candidates), usable,
                                       np.asarray(embeddings[i], np.float32), body, iou, extents[i],
-                                      shares[i], classes[i]))
+                                      shares[i], classes[i], cavities[i]))
     target_roi = None
     if perceived:
         best = max(range(len(perceived)), key=lambda i: (perceived[i].target_iou, -i))
@@ -697,6 +710,7 @@ def grounding_rois(perception: ScenePerception) -> list[ROI]:
             extents_m=r.extents_m,
             colours=r.colours,
             classes=r.classes,
+            cavity_m=r.cavity_m,
         )
         for i, r in enumerate(perception.rois)
     ]
@@ -911,7 +925,8 @@ def run_episode(
     after_pick: dict[int, int] = {}  # chosen ROI -> physics state right after its first pick
     moved: dict[int, tuple[GraspCandidate, str]] = {}  # chosen ROI -> its relocated grasp, why
     try:
-        perception = perceive(env, encoder, cfg, colours=any(g.colour_cue_active for g in grounders.values()))
+        perception = perceive(env, encoder, cfg, colours=any(g.colour_cue_active for g in grounders.values()),
+                              cavity=any(g.cavity_cue_active for g in grounders.values()))
         rois = grounding_rois(perception)
         look = (frame_look(env, perception, encoder, cfg.active_look, before_render=start.restore)
                 if cfg.active_look.enabled else None)
@@ -1027,7 +1042,7 @@ def retry_picks(
         return_home(env, cfg)
         perception = perceive(env, encoder, config,
                               exclude=lambda pose: any(same_grasp(pose, t, cfg) for t in tried),
-                              colours=grounder.colour_cue_active)
+                              colours=grounder.colour_cue_active, cavity=grounder.cavity_cue_active)
         rois = grounding_rois(perception)
         if config.active_look.enabled:  # on the fresh frame, as the first attempt's choice had it
             chosen = frame_look(env, perception, encoder, config.active_look).ground(grounder, verb, rois)[0].chosen

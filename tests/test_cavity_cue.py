@@ -1,0 +1,110 @@
+"""The cavity cue: an open hollow measured from depth, weighed against the KB's "is concave"."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from craft_e.paths import KB_DIR
+from craft_e.runtime.grounding.cavity_cue import (
+    SEEN_IF_CONCAVE,
+    SEEN_IF_NOT,
+    cavity_log_likelihood,
+    cavity_table,
+    with_cavity_cue,
+)
+from craft_e.runtime.grounding.grounder import Grounder
+from craft_e.runtime.grounding.settings import GroundingSettings
+from craft_e.runtime.kb.bundle import load_bundle
+from craft_e.runtime.perception.cavity import measure_cavity
+from craft_e.runtime.perception.roi import ROI
+from craft_e.runtime.sim.pipeline import sim_vocabulary
+
+
+def _disc(size: int = 120, radius: float = 40.0) -> tuple[np.ndarray, np.ndarray]:
+    """A round footprint centred in a ``size``-pixel frame: (radius of each pixel, mask)."""
+    yy, xx = np.mgrid[:size, :size]
+    r = np.hypot(yy - size / 2, xx - size / 2)
+    return r, r <= radius
+
+
+def test_a_cup_shows_its_cavity_a_dome_and_a_flat_top_do_not() -> None:
+    r, mask = _disc()
+    cup = np.where(r > 34, 0.09, 0.01)  # a 6-pixel rim 9 cm high around a floor 1 cm high
+    dome = 0.06 * np.sqrt(np.clip(1 - (r / 40) ** 2, 0, 1))  # a ball's top
+    flat = np.full(r.shape, 0.05)  # a box's lid
+    cavity = measure_cavity(cup, mask)
+    assert cavity is not None and cavity == pytest.approx(0.08, abs=1e-9)
+    dome_cavity, flat_cavity = measure_cavity(dome, mask), measure_cavity(flat, mask)
+    assert dome_cavity is not None and dome_cavity < 0
+    assert flat_cavity == pytest.approx(0.0, abs=1e-12)
+
+
+def test_too_small_or_too_thin_regions_are_not_measured() -> None:
+    heights = np.full((50, 50), 0.02)
+    tiny = np.zeros((50, 50), bool)
+    tiny[10:15, 10:15] = True  # 25 pixels
+    thin = np.zeros((50, 50), bool)
+    thin[5:45, 20:23] = True  # a marker 3 pixels wide: no core survives the erosion
+    assert measure_cavity(heights, tiny) is None
+    assert measure_cavity(heights, thin) is None
+
+
+def test_the_crop_gives_what_the_whole_frame_gives() -> None:
+    """The measure works on the mask's box; the same region anywhere in a frame reads the same."""
+    r, mask = _disc(100, 30)
+    cup = np.where(r > 25, 0.08, 0.0)
+    frame_h, frame_m = np.zeros((480, 640)), np.zeros((480, 640), bool)
+    frame_h[200:300, 300:400], frame_m[200:300, 300:400] = cup, mask
+    assert measure_cavity(frame_h, frame_m) == measure_cavity(cup, mask)
+
+
+def test_the_table_reads_the_kb_and_declines_bundles_without_the_property() -> None:
+    names = ["cup", "bowl", "knife", "tennis ball"]
+    table = cavity_table(names, load_bundle(KB_DIR / "craft-e-default"))
+    assert table is not None
+    seen = dict(zip(names, table.tolist(), strict=True))
+    assert seen["bowl"] == pytest.approx(SEEN_IF_CONCAVE, abs=1e-6)  # "is concave" 1.0 in the KB
+    assert seen["knife"] == pytest.approx(SEEN_IF_NOT, abs=1e-6)  # no edge: not hollow
+    assert seen["cup"] > seen["tennis ball"]
+    assert cavity_table(names, load_bundle(KB_DIR / "direct-llm")) is None  # no properties at all
+    assert cavity_table([*names, "no such object"], load_bundle(KB_DIR / "craft-e-default")) is None
+
+
+def test_a_cavity_favours_hollow_names_and_its_absence_weakly_disfavours_them() -> None:
+    table = np.array([SEEN_IF_CONCAVE, SEEN_IF_NOT], dtype=np.float32)  # [a cup, a knife]
+    ll = cavity_log_likelihood(np.array([0.06, 0.0, np.nan]), table)
+    assert ll.shape == (3, 2)
+    # 6 cm deep: all but certainly seen; 0 cm: all but certainly not (the soft threshold's tails)
+    assert np.exp(ll[0, 0] - ll[0, 1]) == pytest.approx(SEEN_IF_CONCAVE / SEEN_IF_NOT, rel=0.02)
+    assert np.exp(ll[1, 0] - ll[1, 1]) == pytest.approx((1 - SEEN_IF_CONCAVE) / (1 - SEEN_IF_NOT), rel=0.05)
+    assert ll[2].tolist() == [0.0, 0.0]  # not measured: neutral
+    p = np.array([[0.5, 0.5], [0.5, 0.5], [0.5, 0.5]], dtype=np.float32)
+    weighed = with_cavity_cue(p, ll)
+    assert weighed[0, 0] > 0.9 and 0.25 < weighed[1, 0] < 0.5 and weighed[2].tolist() == [0.5, 0.5]
+
+
+def test_grounder_applies_the_cavity_cue_where_the_bundle_can_unless_turned_off() -> None:
+    bundle = load_bundle(KB_DIR / "craft-e-default")
+    vocabulary = list(sim_vocabulary())
+    plain = Grounder(bundle, GroundingSettings(vocabulary=vocabulary, cavity_cue=False))
+    cued = Grounder(bundle, GroundingSettings(vocabulary=vocabulary))  # the default: on where it can
+    assert not plain.cavity_cue_active and cued.cavity_cue_active
+    assert Grounder(bundle, GroundingSettings(vocabulary=vocabulary, cavity_cue=True)).cavity_cue_active
+    for name in ("direct-llm", "conceptnet"):  # no "is concave" in their graphs: grounded without it
+        assert not Grounder(load_bundle(KB_DIR / name), GroundingSettings(vocabulary=vocabulary)).cavity_cue_active
+    emb = bundle.embeddings["object"][bundle.object_index["marker"]]
+    hollow = ROI((0, 0, 10, 10), [0.5], image_embedding=emb, cavity_m=0.06)
+    unmeasured = ROI((20, 0, 10, 10), [0.5], image_embedding=emb)
+    g0, g1 = plain.ground("pour", [hollow, unmeasured]), cued.ground("pour", [hollow, unmeasured])
+    assert not g0.cavity_cue_used and g1.cavity_cue_used
+    p0 = {r.index: {h.name: h.probability for h in r.hypotheses} for r in g0.ranked}
+    p1 = {r.index: {h.name: h.probability for h in r.hypotheses} for r in g1.ranked}
+    assert p1[1] == pytest.approx(p0[1], rel=1e-5)  # no measurement: unchanged
+    cup_rank = [h.name for h in next(r for r in g1.ranked if r.index == 0).hypotheses]
+    assert set(cup_rank[:3]) & {"cup", "mug", "bowl", "pitcher"}  # a hollow "marker" reads as a vessel
+    assert g1.ranked[0].index == 0  # and affords pouring more than the same image without a hollow
+    assert g1.to_dict()["cavity_cue_used"] is True and g1.to_dict()["ranked"][0]["cavity_cm"] == 6.0
+    assert "open cavity from depth: 6.0 cm" in g1.render()
+    assert "cavity_cue" not in GroundingSettings().energy_dict()  # unset: stored results read as before
+    assert plain.settings.energy_dict()["cavity_cue"] is False
