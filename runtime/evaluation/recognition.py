@@ -96,7 +96,8 @@ SETTINGS: tuple[Setting, ...] = (
             size_cue=True, lookalike_cue=True),
     Setting("Lite1, 2x fit", "the classifier EfficientNet-Lite1 at its 240x240 (2x, fit)", "2x", "fit",
             classifier=_LITE1),
-    Setting("Lite1, 2x fit + size cue", "Lite1, 2x, fit, size cue: the default since 2026-12-04", "2x", "fit",
+    Setting("Lite1, 2x fit + size cue", "Lite1, 2x, fit, size cue: the default of 2026-12-04 (the cavity cue "
+            "joined it on 2026-12-05)", "2x", "fit",
             size_cue=True, classifier=_LITE1),
     Setting("Lite1, 2x fit + size + colour cue", "Lite1, 2x, fit; the size and colour cues", "2x", "fit",
             size_cue=True, colour_cue=True, classifier=_LITE1),
@@ -107,7 +108,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("Lite1, overhead + active look + size cue", "Lite1, mean embedding of the 2x fit view and the look, "
             "size cue", "fused", "fit", size_cue=True, classifier=_LITE1),
     Setting("Lite1, 2x fit + size + cavity cue", "Lite1, 2x, fit; the size cue and the open cavity in the depth "
-            "weighed against the KB's 'is concave' (grounding/cavity_cue.py)", "2x", "fit", size_cue=True,
+            "weighed against the KB's 'is concave' (grounding/cavity_cue.py): the default since 2026-12-05", "2x", "fit", size_cue=True,
             classifier=_LITE1, cavity_cue=True),
 )
 
