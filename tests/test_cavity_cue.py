@@ -108,3 +108,26 @@ def test_grounder_applies_the_cavity_cue_where_the_bundle_can_unless_turned_off(
     assert "open cavity from depth: 6.0 cm" in g1.render()
     assert "cavity_cue" not in GroundingSettings().energy_dict()  # unset: stored results read as before
     assert plain.settings.energy_dict()["cavity_cue"] is False
+
+
+def test_the_service_takes_a_measured_cavity() -> None:
+    from fastapi.testclient import TestClient
+
+    from craft_e.runtime.serve.app import build_service, create_app
+
+    service = build_service(KB_DIR / "craft-e-default")
+    marker = service.bundle.embeddings["object"][service.bundle.object_index["marker"]].tolist()
+    objects = ["marker", "cup", "knife"]
+    roi = {"box_xywh": [0, 0, 5, 5], "grasp_scores": [0.9], "image_embedding": marker}
+    with TestClient(create_app(service)) as client:
+        plain = client.post("/ground", json={"verb": "pour", "rois": [roi], "objects": objects}).json()
+        hollow = client.post("/ground", json={"verb": "pour", "objects": objects,
+                                              "rois": [{**roi, "cavity_m": 0.06}]}).json()
+        bad = client.post("/ground", json={"verb": "pour", "objects": objects,
+                                           "rois": [{**roi, "cavity_m": 50.0}]})
+    assert "cavity_cue_used" not in plain and "cavity_cm" not in plain["ranked"][0]
+    assert hollow["cavity_cue_used"] is True and hollow["ranked"][0]["cavity_cm"] == 6.0
+    p_plain = {h["object"]: h["p"] for h in plain["ranked"][0]["hypotheses"]}
+    p_hollow = {h["object"]: h["p"] for h in hollow["ranked"][0]["hypotheses"]}
+    assert p_hollow["cup"] > p_plain["cup"]  # a region with a 6 cm hollow is more likely the cup
+    assert bad.status_code == 422 and bad.json()["detail"][0]["loc"][-1] == "cavity_m"

@@ -194,6 +194,15 @@ def _class_top(values: dict[str, float] | None) -> tuple[tuple[int, float], ...]
     return tuple(sorted(((index[n], float(p)) for n, p in values.items()), key=lambda cp: (-cp[1], cp[0])))
 
 
+def _check_cavity(value: float | None) -> float | None:
+    if value is None:
+        return None
+    if not (math.isfinite(value) and abs(value) <= MAX_EXTENT_M):
+        raise ValueError(f"cavity_m {value!r}: metres from the rim down to the inside (negative for a dome), "
+                         f"at most {MAX_EXTENT_M:g} either way")
+    return value
+
+
 def _check_colours(values: dict[str, float] | None) -> dict[str, float] | None:
     if values is None:
         return None
@@ -234,6 +243,10 @@ class RoiIn(BaseModel):
         "yellow, green, blue, purple, pink, brown; they add up to 1). With a scene vocabulary whose every "
         "name has typical colours in the bundle, p(o | r) also weighs how well they fit (the colour cue); "
         "null: not measured."))
+    cavity_m: float | None = Field(None, description=(
+        "How far the region's inside lies below its rim, metres, from depth (`perception/cavity.py`; negative "
+        "for a dome). With a bundle whose graph defines 'is concave' for every name of `objects`, p(o | r) also "
+        "weighs it against those weights (the cavity cue, on by default); null: not measured."))
     imagenet_classes: dict[str, float] | None = Field(None, description=(
         "The image classifier's most probable ImageNet-1k classes on the region's crop (class name -> "
         "probability, at most 10). With `options.lookalikes`, p(o | r) also weighs how well they fit the "
@@ -244,6 +257,7 @@ class RoiIn(BaseModel):
     _embedding = field_validator("image_embedding")(_check_embedding)
     _extents = field_validator("extents_m")(_check_extents)
     _colours = field_validator("colours")(_check_colours)
+    _cavity = field_validator("cavity_m")(_check_cavity)
     _classes = field_validator("imagenet_classes")(_check_classes)
 
 
@@ -415,7 +429,8 @@ class GroundingService:
                                    "embedding_zero")
             rois.append(ROI(box_xywh=r.box_xywh, grasp_scores=list(r.grasp_scores),
                             image_embedding=emb, label=r.label, extents_m=r.extents_m,
-                            colours=_colour_shares(r.colours), classes=_class_top(r.imagenet_classes)))
+                            colours=_colour_shares(r.colours), classes=_class_top(r.imagenet_classes),
+                            cavity_m=r.cavity_m))
         return rois
 
     def check_image_boxes(self, count: int) -> None:
