@@ -3,7 +3,8 @@
 The cavity cue (``runtime/grounding/cavity_cue.py``) weighs ``p(o | r)`` by whether an ROI shows an
 open hollow in the overhead depth, against the knowledge base's "is concave" weights. Its detector
 rates (``SEEN_IF_CONCAVE`` 0.6, ``SEEN_IF_NOT`` 0.03, a 2 cm threshold) were fixed before any
-measurement; this sweep shows what other rates would have done. Every episode of ``craft eval
+measurement; this sweep shows what other rates would have done, and what the depth bound (an
+object thinner than the threshold cannot show so deep a hollow, ``DEPTH_BOUND``) changes at each. Every episode of ``craft eval
 sim``'s protocol on the labels (sim-dev by default: 105 episodes) is perceived once as the
 evaluation does (``perceive``, the defaults, cavities measured), then grounded by CRAFT-E without
 the cue and with each setting; a choice counts when it is the target's ROI (Detect). No pick is
@@ -36,8 +37,9 @@ from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.pipeline import PipelineConfig, grounding_rois, perceive, sim_vocabulary
 
 METHOD = "CRAFT-E"
-#: (SEEN_IF_CONCAVE, SEEN_IF_NOT, THRESHOLD_M); the first is the shipped one
-SETTINGS: tuple[tuple[float, float, float], ...] = (
+Setting = tuple[float, float, float, bool]
+#: (SEEN_IF_CONCAVE, SEEN_IF_NOT, THRESHOLD_M, DEPTH_BOUND); the first is the shipped one
+RATES: tuple[tuple[float, float, float], ...] = (
     (cavity_cue.SEEN_IF_CONCAVE, cavity_cue.SEEN_IF_NOT, cavity_cue.THRESHOLD_M),
     (0.3, 0.03, 0.02),
     (0.8, 0.03, 0.02),
@@ -45,6 +47,15 @@ SETTINGS: tuple[tuple[float, float, float], ...] = (
     (0.6, 0.03, 0.015),
     (0.6, 0.03, 0.03),
 )
+SETTINGS: tuple[Setting, ...] = tuple((*r, bound) for bound in (cavity_cue.DEPTH_BOUND, not cavity_cue.DEPTH_BOUND)
+                                      for r in RATES)
+
+
+def _set(setting: Setting) -> None:
+    """Set the cue's module constants (the grounder reads them when it is built, the threshold
+    again when it grounds)."""
+    (cavity_cue.SEEN_IF_CONCAVE, cavity_cue.SEEN_IF_NOT, cavity_cue.THRESHOLD_M,
+     cavity_cue.DEPTH_BOUND) = setting
 
 
 def main() -> None:
@@ -60,14 +71,14 @@ def main() -> None:
     encoder = default_encoder(cfg.torch_threads)
     runnable, _ = load_methods(select_methods([METHOD]), encoder.text_encoder_id)
     plain = build_grounders(runnable, GroundingSettings(cavity_cue=False), sim_vocabulary())[METHOD]
-    shipped = (cavity_cue.SEEN_IF_CONCAVE, cavity_cue.SEEN_IF_NOT, cavity_cue.THRESHOLD_M)
+    shipped = SETTINGS[0]
     cued = {}
     try:
-        for setting in SETTINGS:  # the grounder reads the two rates when it is built...
-            cavity_cue.SEEN_IF_CONCAVE, cavity_cue.SEEN_IF_NOT, _ = setting
+        for setting in SETTINGS:
+            _set(setting)
             cued[setting] = build_grounders(runnable, GroundingSettings(), sim_vocabulary())[METHOD]
     finally:
-        cavity_cue.SEEN_IF_CONCAVE, cavity_cue.SEEN_IF_NOT, cavity_cue.THRESHOLD_M = shipped
+        _set(shipped)
     hits: dict[Any, int] = {None: 0, **{s: 0 for s in SETTINGS}}
     moved: dict[Any, list[str]] = {s: [] for s in SETTINGS}
     with SimEnv() as env:
@@ -79,11 +90,11 @@ def main() -> None:
             base = chosen is not None and chosen.index == perception.target_roi
             hits[None] += base
             for setting, grounder in cued.items():
-                cavity_cue.THRESHOLD_M = setting[2]  # ... and the threshold when it grounds
+                _set(setting)
                 try:
                     chosen = grounder.ground(spec.verb, rois).chosen
                 finally:
-                    cavity_cue.THRESHOLD_M = shipped[2]
+                    _set(shipped)
                 hit = chosen is not None and chosen.index == perception.target_roi
                 hits[setting] += hit
                 if hit != base:
@@ -92,21 +103,24 @@ def main() -> None:
     print()
     total = len(specs)
     rows: list[dict[str, Any]] = [{"seen_if_concave": None, "seen_if_not": None, "threshold_cm": None,
-                                   "detect": hits[None], "gained": [], "lost": []}]
-    rows += [{"seen_if_concave": a, "seen_if_not": b, "threshold_cm": round(100 * t, 1), "detect": hits[(a, b, t)],
-              "gained": [m[1:] for m in moved[(a, b, t)] if m[0] == "+"],
-              "lost": [m[1:] for m in moved[(a, b, t)] if m[0] == "-"]} for a, b, t in SETTINGS]
+                                   "depth_bound": None, "detect": hits[None], "gained": [], "lost": []}]
+    rows += [{"seen_if_concave": s[0], "seen_if_not": s[1], "threshold_cm": round(100 * s[2], 1),
+              "depth_bound": s[3], "detect": hits[s],
+              "gained": [m[1:] for m in moved[s] if m[0] == "+"],
+              "lost": [m[1:] for m in moved[s] if m[0] == "-"]} for s in SETTINGS]
     lines = [f"### Cavity cue settings: {METHOD} Detect on {total} episodes of `{args.labels.name}` "
              "(choice only, no pick simulated)\n",
-             "| P(hollow seen \\| concave) | P(hollow seen \\| not) | threshold (cm) | Detect | gained | lost |",
-             "|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        mark = " (default)" if (r["seen_if_concave"], r["seen_if_not"]) == shipped[:2] and \
-            r["threshold_cm"] == round(100 * shipped[2], 1) else ""
-        head = ("no cue", "", "") if r["seen_if_concave"] is None else (
-            f"{r['seen_if_concave']:g}{mark}", f"{r['seen_if_not']:g}", f"{r['threshold_cm']:g}")
+             "| P(hollow seen \\| concave) | P(hollow seen \\| not) | threshold (cm) | depth bound | Detect | "
+             "gained | lost |",
+             "|---:|---:|---:|---|---:|---:|---:|"]
+    for r, setting in zip(rows, (None, *SETTINGS), strict=True):
+        mark = " (default)" if setting == shipped else ""
+        head = ("no cue", "", "", "") if setting is None else (
+            f"{r['seen_if_concave']:g}{mark}", f"{r['seen_if_not']:g}", f"{r['threshold_cm']:g}",
+            "yes" if r["depth_bound"] else "no")
+        lost = ", ".join(r["lost"])
         lines.append("| " + " | ".join(head) + f" | {r['detect']} ({100 * r['detect'] / total:.1f}) | "
-                     f"{len(r['gained'])} | {len(r['lost'])} |")
+                     f"{len(r['gained'])} | {len(r['lost'])}{f' ({lost})' if lost else ''} |")
     table = "\n".join(lines) + "\n"
     print(table)
     if args.markdown is not None:

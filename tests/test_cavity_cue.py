@@ -9,13 +9,16 @@ from craft_e.paths import KB_DIR
 from craft_e.runtime.grounding.cavity_cue import (
     SEEN_IF_CONCAVE,
     SEEN_IF_NOT,
+    THRESHOLD_M,
     cavity_log_likelihood,
     cavity_table,
+    depth_bound,
     with_cavity_cue,
 )
 from craft_e.runtime.grounding.grounder import Grounder
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.kb.bundle import load_bundle
+from craft_e.runtime.kb.sizes import TypicalSize
 from craft_e.runtime.perception.cavity import measure_cavity
 from craft_e.runtime.perception.roi import ROI
 from craft_e.runtime.sim.pipeline import sim_vocabulary
@@ -60,15 +63,30 @@ def test_the_crop_gives_what_the_whole_frame_gives() -> None:
 
 
 def test_the_table_reads_the_kb_and_declines_bundles_without_the_property() -> None:
-    names = ["cup", "bowl", "knife", "tennis ball"]
+    names = ["cup", "bowl", "knife", "tennis ball", "spoon"]
     table = cavity_table(names, load_bundle(KB_DIR / "craft-e-default"))
     assert table is not None
     seen = dict(zip(names, table.tolist(), strict=True))
-    assert seen["bowl"] == pytest.approx(SEEN_IF_CONCAVE, abs=1e-6)  # "is concave" 1.0 in the KB
+    # "is concave" 1.0 in the KB and 16 x 16 x 7 cm: deep enough, the bound 0.999
+    assert seen["bowl"] == pytest.approx(SEEN_IF_CONCAVE, abs=1e-3)
     assert seen["knife"] == pytest.approx(SEEN_IF_NOT, abs=1e-6)  # no edge: not hollow
     assert seen["cup"] > seen["tennis ball"]
+    # the spoon is concave (1.0) but 2 cm thick, the threshold: half its instances could show it
+    assert seen["spoon"] == pytest.approx(0.5 * SEEN_IF_CONCAVE + 0.5 * SEEN_IF_NOT, abs=1e-6)
     assert cavity_table(names, load_bundle(KB_DIR / "direct-llm")) is None  # no properties at all
     assert cavity_table([*names, "no such object"], load_bundle(KB_DIR / "craft-e-default")) is None
+
+
+def test_the_depth_bound_is_the_chance_an_instance_is_thicker_than_the_threshold() -> None:
+    thick = TypicalSize((0.11, 0.09, 0.08), "medium")
+    assert depth_bound(thick) == pytest.approx(1.0, abs=1e-3)
+    at = TypicalSize((0.18, 0.04, THRESHOLD_M), "medium")
+    assert depth_bound(at) == pytest.approx(0.5)
+    thin = TypicalSize((0.2, 0.1, 0.01), "low")  # half the threshold, instances within ~20 %
+    assert depth_bound(thin) < 1e-3
+    assert depth_bound(TypicalSize((0.2, 0.1, 0.01), "high")) > depth_bound(thin)  # a wider spread
+    assert depth_bound(None) == 1.0  # no recorded size: no bound
+    assert depth_bound(at, threshold_m=0.01) > 0.9
 
 
 def test_a_cavity_favours_hollow_names_and_its_absence_weakly_disfavours_them() -> None:
