@@ -43,6 +43,20 @@ def test_a_cup_shows_its_cavity_a_dome_and_a_flat_top_do_not() -> None:
     assert flat_cavity == pytest.approx(0.0, abs=1e-12)
 
 
+def test_a_rim_must_enclose_the_core_one_raised_end_is_not_a_hollow() -> None:
+    """A bottle lying on its side with its cap end raised: high at one end of its outline only.
+    The band's 90th percentile over all its pixels would call it 7 cm deep; the enclosing rim,
+    the median over the sectors around it, does not."""
+    yy, xx = np.mgrid[:60, :140]
+    mask = (np.abs(yy - 30) <= 15) & (np.abs(xx - 70) <= 60)  # 31 x 121 pixels
+    bottle = np.where(xx > 115, 0.10, 0.03)  # the body 3 cm high, the last 15 pixels 10 cm
+    cavity = measure_cavity(bottle, mask)
+    assert cavity is not None and cavity < 0.005
+    walled = np.where((np.abs(yy - 30) > 9) | (np.abs(xx - 70) > 54), 0.10, 0.03)  # a tray, walled all round
+    tray = measure_cavity(walled, mask)
+    assert tray is not None and tray == pytest.approx(0.07, abs=1e-9)
+
+
 def test_too_small_or_too_thin_regions_are_not_measured() -> None:
     heights = np.full((50, 50), 0.02)
     tiny = np.zeros((50, 50), bool)

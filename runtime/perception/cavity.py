@@ -8,11 +8,20 @@ closed bottle shows none (their tops are domes, flats or ridges). The cavity cue
 object's shape (the property "is concave").
 
 The measure: the region's raised pixels are split into a rim band (its outer ring) and a core (the
-mask eroded by a fifth of its equivalent diameter); the cavity depth is the rim band's
-``RIM_PERCENTILE``-th height minus the core's median height (``np.percentile``'s values,
-``extents._percentiles``). An open container's core is its
-floor, well below the rim; a dome's core is its highest part (a negative depth); a flat top gives
-about zero. Percentiles, not extremes, so stray depth pixels at the mask's edge do not count.
+mask eroded by a fifth of its equivalent diameter); the cavity depth is the rim's height minus the
+core's median height (``np.percentile``'s values, ``extents._percentiles``). An open container's
+core is its floor, well below the rim; a dome's core is its highest part (a negative depth); a
+flat top gives about zero. Percentiles, not extremes, so stray depth pixels at the mask's edge do
+not count.
+
+The rim's height is that of an *enclosing* rim (since 2026-12-05, later): the band is cut into
+``RIM_SECTORS`` angular sectors around the region's centroid, each sector's rim is its
+``RIM_PERCENTILE``-th height, and the rim is the median over the sectors, so at least half the
+directions around the core must stand that high. A hollow is walled all round; an object that is
+only high at one end is not one. Before, the band's 90th percentile over all its pixels let one
+raised end count as a rim: a glue bottle lying with its cap up read as 2.4-4.3 cm deep, as deep
+as a bowl, and was taken for a spoon or a cup (docs/recognition.md, "The enclosing rim"). Cups and
+bowls, walled all round, measure the same either way.
 """
 
 from __future__ import annotations
@@ -34,6 +43,10 @@ MIN_CORE_PIXELS = 10
 #: The rim band's width as a share of the mask's equivalent diameter (sqrt of its area).
 CORE_EROSION = 0.2
 RIM_PERCENTILE = 90.0
+#: Angular sectors of the rim band; the rim is the median of their heights (an enclosing rim).
+RIM_SECTORS = 8
+#: A sector with fewer band pixels than this has no height of its own (it is left out).
+MIN_SECTOR_PIXELS = 3
 
 
 def measure_cavity(height_m: npt.NDArray[np.floating], mask: BoolMask) -> float | None:
@@ -57,5 +70,23 @@ def measure_cavity(height_m: npt.NDArray[np.floating], mask: BoolMask) -> float 
     core = steps > band
     if int(np.count_nonzero(core)) < MIN_CORE_PIXELS:
         return None
-    rim = _percentiles(heights[region & ~core], (RIM_PERCENTILE,))[0]
-    return rim - _percentiles(heights[core], (50.0,))[0]
+    return enclosing_rim(heights, region, core) - _percentiles(heights[core], (50.0,))[0]
+
+
+def enclosing_rim(heights: npt.NDArray[np.float64], region: BoolMask, core: BoolMask) -> float:
+    """The height that the rim band (``region`` outside ``core``) reaches in at least half the
+    directions around the region's centroid: the median over ``RIM_SECTORS`` angular sectors of
+    each sector's ``RIM_PERCENTILE``-th height (sectors with fewer than ``MIN_SECTOR_PIXELS``
+    band pixels left out)."""
+    ys, xs = np.nonzero(region)
+    cy, cx = float(ys.mean()), float(xs.mean())
+    band = region & ~core
+    by, bx = np.nonzero(band)
+    angle = np.arctan2(by - cy, bx - cx)  # (-pi, pi]
+    sector = np.minimum((angle + np.pi) * (RIM_SECTORS / (2 * np.pi)), RIM_SECTORS - 1).astype(np.intp)
+    band_heights = heights[by, bx]
+    tops = [_percentiles(band_heights[sector == k], (RIM_PERCENTILE,))[0] for k in range(RIM_SECTORS)
+            if int(np.count_nonzero(sector == k)) >= MIN_SECTOR_PIXELS]
+    if not tops:  # a band too thin to fill any sector: all of it is one rim
+        return _percentiles(band_heights, (RIM_PERCENTILE,))[0]
+    return _percentiles(np.array(tops, dtype=np.float64), (50.0,))[0]
