@@ -70,16 +70,17 @@ def measure_cavity(height_m: npt.NDArray[np.floating], mask: BoolMask) -> float 
     core = steps > band
     if int(np.count_nonzero(core)) < MIN_CORE_PIXELS:
         return None
-    return enclosing_rim(heights, region, core) - _percentiles(heights[core], (50.0,))[0]
+    centre = (float((ys - top).mean()), float((xs - left).mean()))  # the region's centroid in the crop
+    return enclosing_rim(heights, region, core, centre) - _percentiles(heights[core], (50.0,))[0]
 
 
-def enclosing_rim(heights: npt.NDArray[np.float64], region: BoolMask, core: BoolMask) -> float:
+def enclosing_rim(heights: npt.NDArray[np.float64], region: BoolMask, core: BoolMask,
+                  centre: tuple[float, float]) -> float:
     """The height that the rim band (``region`` outside ``core``) reaches in at least half the
-    directions around the region's centroid: the median over ``RIM_SECTORS`` angular sectors of
-    each sector's ``RIM_PERCENTILE``-th height (sectors with fewer than ``MIN_SECTOR_PIXELS``
-    band pixels left out)."""
-    ys, xs = np.nonzero(region)
-    cy, cx = float(ys.mean()), float(xs.mean())
+    directions around ``centre`` (row, column: the region's centroid): the median over
+    ``RIM_SECTORS`` angular sectors of each sector's ``RIM_PERCENTILE``-th height (sectors with
+    fewer than ``MIN_SECTOR_PIXELS`` band pixels left out)."""
+    cy, cx = centre
     band = region & ~core
     by, bx = np.nonzero(band)
     angle = np.arctan2(by - cy, bx - cx)  # (-pi, pi]
