@@ -272,16 +272,18 @@ def host_description() -> str:
 
 def reproduces(mine: Any, published: Any, name: str) -> None:
     """``assert_same`` for a published results file, whose failure says where it differs and what
-    to check first: with no code change, the host. A few physics outcomes sit on an edge that the
-    networks' last float digits decide, and those digits depend on the CPU (docs/pickability.md:
-    4 of 222 pickability outcomes moved between two host types)."""
+    to check first. The networks' and numpy's last float digits depend on the CPU's kernels; before
+    the grasps and the arm's joint targets were rounded (2026-12-05) that moved a few physics
+    outcomes between host types (docs/pickability.md: 4 of 222), and since then other kernels on
+    one host reproduce every outcome (``test_pickability``'s ``OTHER_KERNELS``). So a failure
+    points at a code change first; the host is named in case it is not that."""
     try:
         assert_same(mine, published)
     except AssertionError as exc:
         raise AssertionError(
-            f"{name} is not reproduced at {exc}. If no code that reaches the episodes changed, compare hosts: "
-            f"this one is {host_description()}; regenerate the file with its command on the host type the "
-            "project publishes from, and say so") from exc
+            f"{name} is not reproduced at {exc}. Look first for a change to code that reaches the episodes "
+            f"(then regenerate the file with its command and say why it moved); this host is "
+            f"{host_description()}") from exc
 
 
 def assert_same(mine: Any, published: Any, where: str = "") -> None:
@@ -308,6 +310,7 @@ def test_a_failed_reproduction_names_the_file_the_place_and_the_host() -> None:
         reproduces({"a": [1.0, "success"]}, {"a": [1.0, "missed"]}, "x.json")
     message = str(failed.value)
     assert message.startswith("x.json is not reproduced at .a[1]") and "kernels at" in message
+    assert "a change to code that reaches the episodes" in message
 
 
 def test_the_reproduction_check_tolerates_float_digits_only() -> None:

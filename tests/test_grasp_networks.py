@@ -22,10 +22,13 @@ from craft_e.runtime.grasp.ggcnn import GGCNN, GGCNN2
 from craft_e.runtime.grasp.grconvnet import GenerativeResnet
 from craft_e.runtime.grasp.metrics import angle_difference
 from craft_e.runtime.grasp.postprocess import (
+    ANGLE_QUANTUM_RAD,
+    WIDTH_QUANTUM_PX,
     ProcessedMaps,
     detect_grasps,
     find_peaks,
     post_process,
+    snap,
 )
 from craft_e.runtime.grasp.predict import CropWindow, choose_crop, predict_grasps
 from craft_e.runtime.grasp.registry import GraspWeightsError, load, models_dir
@@ -159,6 +162,22 @@ def test_detect_grasps_respects_mask() -> None:
     mask[50:70, 60:80] = True
     grasps = detect_grasps(maps, 5, min_distance=10, mask=mask)
     assert [g.center_xy for g in grasps] == [(70.0, 60.0)]
+
+
+def test_grasps_leave_at_a_fixed_precision_so_last_digit_noise_does_not_reach_them() -> None:
+    """The maps' last float digits depend on the CPU's kernels (``postprocess.ANGLE_QUANTUM_RAD``):
+    maps that differ by that much must give the same grasp, bit for bit."""
+    yy, xx = np.mgrid[0:100, 0:100]
+    q = (0.9 * np.exp(-((xx - 30) ** 2 + (yy - 40) ** 2) / 50.0)).astype(np.float32)
+    maps = ProcessedMaps(quality=q, angle=np.full_like(q, 0.43721), width_px=np.full_like(q, 31.2468))
+    noisy = ProcessedMaps(quality=q, angle=maps.angle + np.float32(4e-6), width_px=maps.width_px - np.float32(8e-5))
+    (grasp,), (other,) = detect_grasps(maps, 1, min_distance=10), detect_grasps(noisy, 1, min_distance=10)
+    assert grasp == other
+    assert grasp.angle_rad == pytest.approx(0.437, abs=1e-12) and grasp.width_px == pytest.approx(31.2, abs=1e-12)
+    assert snap(-0.0004, ANGLE_QUANTUM_RAD) == 0.0 and snap(1.23456, WIDTH_QUANTUM_PX) == pytest.approx(1.2)
+    # an angle past +pi/2 on the grid still wraps into [-pi/2, pi/2)
+    edge = ProcessedMaps(quality=q, angle=np.full_like(q, math.pi / 2 + 3e-4), width_px=maps.width_px)
+    assert -math.pi / 2 <= detect_grasps(edge, 1, min_distance=10)[0].angle_rad < math.pi / 2
 
 
 def test_crop_window_maps_back_to_image() -> None:

@@ -8,11 +8,12 @@ import xml.etree.ElementTree as ET
 from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 import pybullet as p
 import pytest
 
 from craft_e.runtime.sim.assets import shared_path
-from craft_e.runtime.sim.robot import CR3Robot, top_down_rotation
+from craft_e.runtime.sim.robot import CR3Robot, joint_targets, top_down_rotation
 from craft_e.runtime.sim.robot_urdf import (
     CR3_URDF,
     FINGERTIP_BELOW_TCP,
@@ -152,3 +153,28 @@ def test_a_line_that_never_misses_is_planned_as_before(bare_robot: Callable[...,
     b = single.plan_linear(start_q, (0.30, -0.20, 0.15), 0.3)
     assert all(s.ok(split.config) for s in a) and len(a) == len(b) > 5
     assert all(np.array_equal(x.q, y.q) for x, y in zip(a, b, strict=True))
+
+
+
+def test_waypoints_that_differ_in_their_last_bits_move_the_arm_identically(
+    bare_robot: Callable[..., CR3Robot], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """IK's answers carry the last bits of the host's numpy kernels (``JOINT_TARGET_DECIMALS``);
+    the arm is sent the same targets whatever those bits are, so the physics ends bit for bit
+    where it would on another host. Sent unrounded, the same two paths end apart."""
+    planner = bare_robot()
+    line = planner.plan_linear(planner.joint_positions(), (0.30, -0.20, 0.15), 0.3)
+    assert len(line) > 5 and all(s.ok(planner.config) for s in line)
+    waypoints = [s.q for s in line]
+    nudged = [np.nextafter(q, q + 1.0) for q in waypoints]  # one ulp up, every joint
+    assert not any(np.array_equal(a, b) for a, b in zip(waypoints, nudged, strict=True))
+
+    def played(path: list[npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
+        robot = bare_robot()
+        robot.follow(path, steps=80)
+        return robot.joint_positions()
+
+    assert np.array_equal(played(waypoints), played(nudged))
+    assert np.array_equal(joint_targets(waypoints[0]), joint_targets(nudged[0]))
+    monkeypatch.setattr("craft_e.runtime.sim.robot.joint_targets", lambda q: q)
+    assert not np.array_equal(played(waypoints), played(nudged))

@@ -5,7 +5,7 @@ angle = ½·atan2(sin, cos); width in pixels = width map × the training normali
 smoothing of quality (σ=2), angle (σ=2) and width (σ=1), edge mode "nearest", truncate 4 (scikit-image
 ``gaussian`` defaults, reproduced with scipy so scikit-image is not needed); then local maxima of
 quality at least ``min_distance`` apart and above 0.2, strongest first. The opening is the width
-map at the peak, the jaw size half of it.
+map at the peak, the jaw size half of it; angle and opening leave at a fixed precision (``snap``).
 """
 
 from __future__ import annotations
@@ -23,6 +23,23 @@ from .geometry import Grasp2D, wrap_half_pi
 Float32Array = npt.NDArray[np.float32]
 BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.intp]
+
+#: The precision at which a grasp's angle and opening leave the network (``snap``). The maps'
+#: last float digits depend on the CPU's kernels: on the development host, limiting oneDNN to AVX
+#: or running on one thread instead of two moved the angle map by up to 4.5e-6 rad and the width
+#: map by up to 8e-5 px (ad hoc, 3 sim-dev frames), and a grasp yaw that differs in the sixth
+#: digit was enough to change 2 of 222 pickability outcomes (the physics amplifies it). On grids
+#: ~200 and ~1000 times coarser than those differences, every host gets the same grasp except
+#: where a value lies within that difference of a grid line (about 1 grasp in 100). Both grids
+#: are far below what the networks resolve (their angle bins are degrees wide, 1e-3 rad is
+#: 0.06 degrees) and below what the simulated fingers feel (0.1 px is ~0.1 mm at the table).
+ANGLE_QUANTUM_RAD = 1e-3
+WIDTH_QUANTUM_PX = 0.1
+
+
+def snap(value: float, quantum: float) -> float:
+    """``value`` to the nearest multiple of ``quantum`` (a pure function of its inputs' bits)."""
+    return round(value / quantum) * quantum
 
 
 @dataclass(frozen=True)
@@ -143,11 +160,11 @@ def detect_grasps(
         peaks = find_peaks(q, min_distance, min_quality, num_peaks=max_grasps)
     grasps: list[Grasp2D] = []
     for row, col in peaks:
-        width = max(float(maps.width_px[row, col]), 0.0)
+        width = max(snap(float(maps.width_px[row, col]), WIDTH_QUANTUM_PX), 0.0)
         grasps.append(
             Grasp2D(
                 center_xy=(float(col), float(row)),
-                angle_rad=wrap_half_pi(float(maps.angle[row, col])),
+                angle_rad=wrap_half_pi(snap(float(maps.angle[row, col]), ANGLE_QUANTUM_RAD)),
                 width_px=width,
                 length_px=width / 2.0,
                 quality=float(np.clip(q[row, col], 0.0, 1.0)),

@@ -35,6 +35,19 @@ FloatArray = npt.NDArray[np.float64]
 Point3 = Sequence[float] | FloatArray
 
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6")
+#: Decimals (radians) of the joint targets the arm is sent (``CR3Robot.follow``). IK's answers
+#: carry the last bits of the host's numpy kernels (OpenBLAS picks its matrix kernels per CPU:
+#: pinning it to another kernel set changed 2 of 222 pickability outcomes on the development
+#: host, ad hoc), and the physics amplifies a 1e-16 rad difference into another outcome. Rounded
+#: to 1e-9 rad (0.5 nm at the arm's reach) two hosts send the same targets unless a value lies
+#: within those bits of a rounding boundary, about once in 10^6 values.
+JOINT_TARGET_DECIMALS = 9
+
+
+def joint_targets(q: FloatArray) -> FloatArray:
+    """``q`` as the arm is sent it: rounded to ``JOINT_TARGET_DECIMALS`` (elementwise IEEE
+    operations, so the same bits on every host)."""
+    return np.asarray(np.round(np.asarray(q, dtype=np.float64), JOINT_TARGET_DECIMALS), dtype=np.float64)
 # Gripper down with the TCP at (0.15, -0.15, 0.35): clear of the overhead camera's view, and a
 # posture from which IK converges over the whole workspace (98% of a test grid, the rest at the
 # reach limit).
@@ -427,7 +440,8 @@ class CR3Robot:
         still held?"); when it says no the arm holds where it is and ``False`` is returned, as a
         real controller would stop on a lost grasp.
         """
-        path = np.vstack([self.joint_positions(), *waypoints])  # [k, 6]
+        # the current joints are the simulator's own state, the waypoints IK's answers
+        path = np.vstack([self.joint_positions(), *(joint_targets(w) for w in waypoints)])
         seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
         cum = np.concatenate([[0.0], np.cumsum(seg)])
         total = float(cum[-1])
