@@ -140,10 +140,10 @@ def test_the_full_run_reproduces_the_published_tables() -> None:
 
 #: CPU kernels other than the ones this host picks by default, chosen through each library's own
 #: switch: torch's convolutions (oneDNN) limited to AVX, numpy's and scipy's matrix products
-#: (OpenBLAS) on their Sandy Bridge kernels, numpy's own loops at the X86_V2 level. Each alone
-#: moved 2 of the 222 outcomes (and 58 wrist shifts) before the grasps and the joint targets were
-#: rounded (``grasp/postprocess.py``, ``sim/robot.py``; docs/pickability.md); they stand in for
-#: another host's CPU, which a single machine cannot be.
+#: (OpenBLAS) on their Sandy Bridge kernels, numpy's own loops at the X86_V2 level. Before the
+#: grasps and the joint targets were rounded (``grasp/postprocess.py``, ``sim/robot.py``;
+#: docs/pickability.md) the first two alone moved 2 of the 222 outcomes each and all three 4;
+#: they stand in for another host's CPU, which a single machine cannot be.
 OTHER_KERNELS = {"ONEDNN_MAX_CPU_ISA": "AVX", "OPENBLAS_CORETYPE": "Sandybridge",
                  "NPY_DISABLE_CPU_FEATURES": "X86_V3"}
 

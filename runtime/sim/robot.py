@@ -35,23 +35,26 @@ FloatArray = npt.NDArray[np.float64]
 Point3 = Sequence[float] | FloatArray
 
 ARM_JOINTS = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6")
+# Gripper down with the TCP at (0.15, -0.15, 0.35): clear of the overhead camera's view, and a
+# posture from which IK converges over the whole workspace (98% of a test grid, the rest at the
+# reach limit).
+HOME_Q = np.array([-0.136, 0.384, -1.126, -0.829, 1.5708, 0.912])
 #: Decimals (radians) of the joint targets the arm is sent (``CR3Robot.follow``). IK's answers
-#: carry the last bits of the host's numpy kernels (OpenBLAS picks its matrix kernels per CPU:
-#: pinning it to another kernel set changed 2 of 222 pickability outcomes on the development
-#: host, ad hoc), and the physics amplifies a 1e-16 rad difference into another outcome. Rounded
-#: to 1e-9 rad (0.5 nm at the arm's reach) two hosts send the same targets unless a value lies
-#: within those bits of a rounding boundary, about once in 10^6 values.
-JOINT_TARGET_DECIMALS = 9
+#: depend on the host's numpy kernels (OpenBLAS picks its matrix kernels per CPU; numpy its own
+#: loops), not only in their last bits: Newton and pybullet's solver stop within a tolerance, so
+#: a waypoint's joints moved by up to 8e-11 rad under other kernels on the development host (ad
+#: hoc, sim-dev's pour/cup/2). The physics amplifies any such difference into another outcome
+#: (pinning OpenBLAS to another kernel set changed 2 of 222 pickability outcomes), and a first
+#: grid of 1e-9 rad still let one sim-dev pick diverge. Rounded to 1e-5 rad (5 micrometres at
+#: the arm's reach, below the CR3's 0.02 mm repeatability) two hosts send the same targets
+#: unless a value lies within that difference of a rounding boundary: about 2 values in 10^5.
+JOINT_TARGET_DECIMALS = 5
 
 
 def joint_targets(q: FloatArray) -> FloatArray:
     """``q`` as the arm is sent it: rounded to ``JOINT_TARGET_DECIMALS`` (elementwise IEEE
     operations, so the same bits on every host)."""
     return np.asarray(np.round(np.asarray(q, dtype=np.float64), JOINT_TARGET_DECIMALS), dtype=np.float64)
-# Gripper down with the TCP at (0.15, -0.15, 0.35): clear of the overhead camera's view, and a
-# posture from which IK converges over the whole workspace (98% of a test grid, the rest at the
-# reach limit).
-HOME_Q = np.array([-0.136, 0.384, -1.126, -0.829, 1.5708, 0.912])
 
 
 def top_down_rotation(yaw: float) -> FloatArray:
