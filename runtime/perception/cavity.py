@@ -86,8 +86,8 @@ def enclosing_rim(heights: npt.NDArray[np.float64], region: BoolMask, core: Bool
     angle = np.arctan2(by - cy, bx - cx)  # (-pi, pi]
     sector = np.minimum((angle + np.pi) * (RIM_SECTORS / (2 * np.pi)), RIM_SECTORS - 1).astype(np.intp)
     band_heights = heights[by, bx]
-    tops = [_percentiles(band_heights[sector == k], (RIM_PERCENTILE,))[0] for k in range(RIM_SECTORS)
-            if int(np.count_nonzero(sector == k)) >= MIN_SECTOR_PIXELS]
+    members = [band_heights[sector == k] for k in range(RIM_SECTORS)]
+    tops = [_percentiles(m, (RIM_PERCENTILE,))[0] for m in members if len(m) >= MIN_SECTOR_PIXELS]
     if not tops:  # a band too thin to fill any sector: all of it is one rim
         return _percentiles(band_heights, (RIM_PERCENTILE,))[0]
     return _percentiles(np.array(tops, dtype=np.float64), (50.0,))[0]

@@ -54,7 +54,7 @@ JOINT_TARGET_DECIMALS = 5
 def joint_targets(q: FloatArray) -> FloatArray:
     """``q`` as the arm is sent it: rounded to ``JOINT_TARGET_DECIMALS`` (elementwise IEEE
     operations, so the same bits on every host)."""
-    return np.asarray(np.round(np.asarray(q, dtype=np.float64), JOINT_TARGET_DECIMALS), dtype=np.float64)
+    return np.asarray(q, dtype=np.float64).round(JOINT_TARGET_DECIMALS)
 
 
 def top_down_rotation(yaw: float) -> FloatArray:
