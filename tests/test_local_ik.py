@@ -20,7 +20,13 @@ from craft_e.runtime.sim import local_ik
 from craft_e.runtime.sim.gripper import GripperConfig
 from craft_e.runtime.sim.kinematics import axis_angle_matrix, load_chain
 from craft_e.runtime.sim.local_ik import ChainIK
-from craft_e.runtime.sim.robot import HOME_Q, CR3Robot, joint_targets, top_down_rotation
+from craft_e.runtime.sim.robot import (
+    HOME_Q,
+    CR3Robot,
+    joint_targets,
+    rotation_angle,
+    top_down_rotation,
+)
 from craft_e.runtime.sim.robot_urdf import TCP_LINK, robot_urdf_path
 
 
@@ -35,6 +41,40 @@ def test_pose_matches_the_chain_model(hand: str) -> None:
         reference = chain.forward(q)
         assert np.allclose(rotation, reference[:3, :3], atol=1e-12)
         assert np.allclose(position, reference[:3, 3], atol=1e-12)
+
+
+@pytest.mark.parametrize("hand", ["panda", "robotiq_2f85"])
+def test_joint_frames_match_the_chain_model(hand: str) -> None:
+    """The clearance check reads the arm's joint frames from the compiled walk (fixed joints
+    included): the frames ``SerialChain.frames`` gives, by the same names, to float rounding."""
+    chain = load_chain(robot_urdf_path(hand), TCP_LINK)
+    ik = ChainIK(chain)
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        q = rng.uniform(-math.pi, math.pi, size=6)
+        ours, reference = ik.joint_frames(ik.walk(q)[1]), chain.frames(q)
+        assert ours.keys() == reference.keys()
+        for name, frame in reference.items():
+            assert np.allclose(ours[name], frame, atol=1e-12), name
+
+
+def test_the_compiled_check_equals_the_robots_python_check(bare_robot: Callable[..., CR3Robot]) -> None:
+    """``checked_answer`` (Newton's answers) wraps joints into the limits and measures the errors
+    as ``_into_limits_checked`` and ``rotation_angle`` do for pybullet's answers: the same joints
+    and verdicts, errors to rounding, on joints inside, a turn outside and beyond the limits."""
+    robot = bare_robot()
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        q = rng.uniform(-9.0, 9.0, size=6)
+        reached = axis_angle_matrix(rng.normal(size=3), float(rng.uniform(0, math.pi)))
+        wanted = axis_angle_matrix(rng.normal(size=3), float(rng.uniform(0, math.pi)))
+        at, target = rng.normal(size=3), rng.normal(size=3)
+        wrapped, within, position_error, angle_error = local_ik.checked_answer(
+            q, reached, at, wanted, target, robot._lower, robot._upper)
+        expected, expected_within = robot._into_limits_checked(q)
+        assert np.array_equal(wrapped, expected) and within == expected_within
+        assert math.isclose(position_error, float(np.linalg.norm(at - target)), rel_tol=1e-12)
+        assert math.isclose(angle_error, rotation_angle(reached, wanted), rel_tol=1e-9, abs_tol=1e-12)
 
 
 def _pybullet_only(robot: CR3Robot) -> CR3Robot:

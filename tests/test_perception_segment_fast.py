@@ -19,8 +19,9 @@ from craft_e.runtime.perception.segment import (
     _EIGHT_CONNECTED,
     SegmentConfig,
     _colour_foreground,
-    _doubled_median,
-    _doubled_sq_distance,
+    _distances_and_table_counts,
+    _table_histograms,
+    _value_at_rank,
     open_3x3,
 )
 
@@ -37,7 +38,7 @@ def _reference_colour_foreground(rgb: np.ndarray, on_table: np.ndarray, near_pla
         d = 2 * x.astype(np.int32) - median2.astype(np.int32)
         return np.einsum("...c,...c->...", d, d).astype(np.int64)
 
-    median2 = np.array([_doubled_median(colours[:, c], n) for c in range(3)], dtype=np.int64)
+    median2 = np.array([int(2 * np.median(colours[:, c].astype(np.float64))) for c in range(3)], dtype=np.int64)
     dist4 = dist(colours, median2)
     middle = np.partition(dist4, [(n - 1) // 2, n // 2])
     mad = (np.sqrt(middle[(n - 1) // 2] / 4.0) + np.sqrt(middle[n // 2] / 4.0)) / 2.0
@@ -101,23 +102,32 @@ def test_roi_from_mask_within_a_window_is_the_same() -> None:
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 1001])
-def test_doubled_median_is_twice_numpy_median(n: int) -> None:
-    """Exact for odd and even counts, skewed and flat value spreads."""
+def test_histogram_medians_are_twice_numpy_median(n: int) -> None:
+    """The colour cue reads twice each channel's median off the table pixels' histograms (the sum
+    of the two middle ranks): exact for odd and even counts, skewed and flat value spreads."""
     rng = np.random.default_rng(n)
     for values in (rng.integers(0, 256, n, dtype=np.uint8), (rng.random(n) ** 4 * 255).astype(np.uint8)):
-        assert _doubled_median(values, n) == int(2 * np.median(values.astype(np.float64)))
+        rgb = np.ascontiguousarray(np.stack([values, values[::-1], values // 3], axis=-1)[None])  # [1, n, 3]
+        counts = _table_histograms(rgb, np.ones((1, n), dtype=bool))
+        for c in range(3):
+            doubled = _value_at_rank(counts[c], (n - 1) // 2) + _value_at_rank(counts[c], n // 2)
+            assert doubled == int(2 * np.median(rgb[0, :, c].astype(np.float64)))
 
 
 def test_doubled_sq_distance_is_exact_at_the_extremes() -> None:
     """Every channel value against doubled medians from 0 to 510 (odd ones too: half-integer
-    medians), equal to the float64 formula; the largest, 3 x 510^2, still fits int32."""
+    medians), equal to the float64 formula; the largest, 3 x 510^2, still fits int32; the
+    table pixels' distances are counted exactly."""
     values = np.arange(256, dtype=np.uint8)
     rgb = np.stack(np.broadcast_arrays(values[:, None], values[::-1][:, None], values[:, None] // 2), -1)
     rgb = np.ascontiguousarray(np.broadcast_to(rgb, (256, 3, 3)))  # [256, 3, 3]
+    table = np.random.default_rng(0).random((256, 3)) < 0.5
     for median2 in ([0, 0, 0], [510, 510, 510], [255, 1, 509], [301, 290, 270]):
         m = np.array(median2, dtype=np.int64)
-        got = _doubled_sq_distance(rgb, m)
+        got, counts = _distances_and_table_counts(rgb, m, table)
         want = (((2.0 * rgb.astype(np.float64) - m) ** 2).sum(axis=-1))
         assert got.dtype == np.int32 and np.array_equal(got, want.astype(np.int64))
-    full = _doubled_sq_distance(np.zeros((1, 1, 3), np.uint8), np.array([510, 510, 510]))
+        assert np.array_equal(counts, np.bincount(got[table], minlength=len(counts)))
+    full, _ = _distances_and_table_counts(np.zeros((1, 1, 3), np.uint8), np.array([510, 510, 510]),
+                                          np.ones((1, 1), dtype=bool))
     assert int(full[0, 0]) == 3 * 510**2

@@ -181,6 +181,30 @@ def _newton(rotation: FloatArray, position: FloatArray, seed: FloatArray, origin
     return False, q, end
 
 
+@numba.njit(cache=True)
+def checked_answer(q: FloatArray, reached: FloatArray, at: FloatArray, rotation: FloatArray, position: FloatArray,
+             lower: FloatArray, upper: FloatArray) -> tuple[FloatArray, bool, float, float]:  # pragma: no cover
+    """A Newton answer as the robot checks it: ``q`` with each joint outside its limits shifted by
+    +2 pi, else -2 pi, where that lands inside (a whole turn: the same pose), whether every joint
+    is then within, the distance from the reached position ``at`` to ``position`` and the angle
+    between the ``reached`` rotation and ``rotation`` (``robot.rotation_angle``)."""
+    wrapped = q.copy()
+    within = True
+    for i in range(q.shape[0]):
+        for shift in (2 * math.pi, -2 * math.pi):
+            if not lower[i] <= wrapped[i] <= upper[i]:
+                candidate = wrapped[i] + shift
+                if lower[i] <= candidate <= upper[i]:
+                    wrapped[i] = candidate
+        within = within and lower[i] <= wrapped[i] <= upper[i]
+    dx, dy, dz = at[0] - position[0], at[1] - position[1], at[2] - position[2]
+    trace = 0.0
+    for r in range(3):
+        trace += reached[0, r] * rotation[0, r] + reached[1, r] * rotation[1, r] + reached[2, r] * rotation[2, r]
+    cosine = min(1.0, max(-1.0, (trace - 1.0) / 2.0))
+    return wrapped, within, math.sqrt(dx * dx + dy * dy + dz * dz), math.acos(cosine)
+
+
 class ChainIK:
     """Forward kinematics and Newton IK of one revolute ``SerialChain``.
 
@@ -193,14 +217,19 @@ class ChainIK:
         origins: list[FloatArray] = []
         axes: list[FloatArray] = []
         pending = np.eye(4)
+        #: every joint's child frame from the walk's frames: (name, last movable joint's index at
+        #: or before it, -1 for none; the fixed transform after that frame, None when movable)
+        self._named: list[tuple[str, int, FloatArray | None]] = []
         for joint in chain.joints:
             pending = pending @ joint.origin
             if not joint.movable:
+                self._named.append((joint.name, len(axes) - 1, pending.copy()))
                 continue
             if joint.kind not in ("revolute", "continuous"):
                 raise ValueError(f"joint {joint.name} is {joint.kind}: local IK handles revolute joints only")
             origins.append(pending)
             axes.append(joint.axis / np.linalg.norm(joint.axis))
+            self._named.append((joint.name, len(axes) - 1, None))
             pending = np.eye(4)
         self._origins = np.ascontiguousarray(origins, dtype=np.float64)  # [n, 4, 4]: before each joint
         self._axes = np.ascontiguousarray(axes, dtype=np.float64)  # [n, 3]: each joint's axis, own frame
@@ -228,6 +257,17 @@ class ChainIK:
         end: FloatArray = _walk(np.asarray(q, dtype=np.float64), self._origins, self._cross, self._cross2,
                                 self._tail, frames)
         return end, frames
+
+    def joint_frames(self, frames: FloatArray) -> dict[str, FloatArray]:
+        """Every joint's child frame by name (4x4, root frame), as ``SerialChain.frames`` gives
+        them (to float rounding), from ``walk``'s movable-joint ``frames``."""
+        out: dict[str, FloatArray] = {}
+        for name, index, fixed in self._named:
+            if fixed is None:
+                out[name] = frames[index]
+            else:
+                out[name] = fixed if index < 0 else frames[index] @ fixed
+        return out
 
     def solve(
         self, rotation: FloatArray, position: FloatArray, seed: FloatArray

@@ -22,7 +22,7 @@ import pybullet as p
 
 from .gripper import GripperConfig, ParallelGripper
 from .kinematics import Mat4, SerialChain, load_chain
-from .local_ik import ChainIK
+from .local_ik import ChainIK, checked_answer
 from .robot_urdf import (
     HAND_JOINT,
     TCP_JOINT,
@@ -230,8 +230,8 @@ class CR3Robot:
     def forward_and_frames(self, q: FloatArray) -> tuple[TcpPose, dict[str, Mat4]]:
         """``forward(q)`` and every joint's child frame (4x4, the chain's root frame: add
         ``base_position`` for the world) from one walk of the model chain."""
-        local, frames = self.chain.forward_and_frames(q)
-        return TcpPose(local[:3, 3] + self.base_position, local[:3, :3]), frames
+        end, frames = self._local_ik.walk(q)
+        return TcpPose(end[:3, 3] + self.base_position, end[:3, :3]), self._local_ik.joint_frames(frames)
 
     def reset_home(self) -> None:
         """Teleport to the home configuration (setup only) and hold it."""
@@ -314,13 +314,11 @@ class CR3Robot:
         if found is None:
             return None
         q, reached, at = found
-        q, within = self._into_limits_checked(q)  # whole turns of a joint: the same pose
-        solution = IKSolution(
-            q=q,
-            position_error=float(np.linalg.norm(at + self.base_position - target)),
-            angle_error=rotation_angle(reached, rotation),
-            within_limits=within,
-        )
+        # whole turns of a joint (the same pose) and the errors, as the pybullet path checks its
+        # answers (``_into_limits_checked``, ``rotation_angle``), compiled
+        q, within, position_error, angle_error = checked_answer(
+            q, reached, at, rotation, target - self.base_position, self._lower, self._upper)
+        solution = IKSolution(q=q, position_error=position_error, angle_error=angle_error, within_limits=within)
         # Not good enough (outside the limits, say): pybullet's solver may find another posture.
         return solution if solution.ok(self.config) else None
 
