@@ -18,13 +18,13 @@ not shrink.
 Why compiled (numba): on 6 joints the arithmetic is nothing; what a waypoint cost in numpy was
 ~25 array calls per Newton step at a microsecond or more each (~175 us a waypoint, ~9 ms of the
 robot's ~22 ms ``ground_ik`` stage per scene). The kernels below are plain loops over doubles:
-no BLAS, no fused multiply-add (numba leaves fast-math off), so they give the same answer on
-every x86 CPU. They agree with the numpy form to ~1e-13 rad (another order of the same additions
-and another pivoting of the 6x6 solve); the arm is sent its targets rounded to 1e-5 rad
-(``robot.joint_targets``), so the physics does not see the difference
-(``tests/test_local_ik.py``; the published sim tables reproduce, ``tests/test_eval_sim.py``).
-The first call of a process loads the compiled code from numba's cache (``__pycache__``), or
-compiles it (~10 s, once per install).
+no BLAS, and neither fused multiply-adds nor reordered sums (numba leaves fast-math off), so only
+the system libm's sin/cos/atan2 may differ between CPUs, in the last bit. They agree with the
+numpy form to ~1e-13 rad (other orders of the same sums, and their own Gaussian elimination in
+place of LAPACK's); the arm is sent its targets rounded to 1e-5 rad (``robot.joint_targets``), so
+the physics does not see the difference (``tests/test_local_ik.py``; the published sim tables
+reproduce, ``tests/test_eval_sim.py``). The first call of a process loads the compiled code from
+numba's cache (``__pycache__``), or compiles it (~10 s, once per install).
 """
 
 from __future__ import annotations
