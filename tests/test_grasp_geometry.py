@@ -104,3 +104,74 @@ def test_depth_helpers_tolerate_holes() -> None:
     with pytest.raises(ValueError, match="outside"):
         sample_depth(depth, (100.0, 10.0))
     assert wrap_half_pi(math.pi / 2) == pytest.approx(-math.pi / 2)
+
+
+def _reference_rect_to_pose(grasp: Grasp2D, depth: np.ndarray | float, intrinsics: CameraIntrinsics,
+                            cam_to_world: np.ndarray) -> TopDownGrasp:
+    """``rect_to_pose`` as it was before its deprojections moved to Python floats (numpy's
+    ``deproject`` and ``np.median``): the oracle the faster form must equal bit for bit."""
+    T = np.asarray(cam_to_world, dtype=np.float64)
+    if isinstance(depth, np.ndarray):
+        u, v = round(grasp.center_xy[0]), round(grasp.center_xy[1])
+        z = math.nan
+        for r in (2, 5, 11):
+            win = np.asarray(depth[max(v - r, 0) : v + r + 1, max(u - r, 0) : u + r + 1], np.float64)
+            valid = win[np.isfinite(win) & (win > 0)]
+            if valid.size:
+                z = float(np.median(valid))
+                break
+        if math.isnan(z):
+            raise ValueError("no valid depth")
+    else:
+        z = float(depth)
+    R, t = T[:3, :3], T[:3, 3]
+    position = R @ intrinsics.deproject(grasp.center_xy, z) + t
+    ax, ay = grasp.axis_xy
+    half = grasp.width_px / 2.0
+    ends_uv = np.array([[grasp.center_xy[0] - half * ax, grasp.center_xy[1] - half * ay],
+                        [grasp.center_xy[0] + half * ax, grasp.center_xy[1] + half * ay]])
+    ends_same_depth = intrinsics.deproject(ends_uv, np.full(2, z)) @ R.T + t
+    ends = []
+    for uv, fallback in zip(ends_uv, ends_same_depth, strict=True):
+        direction = R @ intrinsics.deproject(uv, 1.0)
+        if abs(direction[2]) < 1e-9:
+            ends.append(fallback)
+            continue
+        along = (float(position[2]) - t[2]) / direction[2]
+        ends.append(fallback if along <= 0 else t + along * direction)
+    d = ends[1] - ends[0]
+    yaw = wrap_half_pi(math.atan2(float(d[1]), float(d[0])))
+    return TopDownGrasp(position=position, yaw=yaw, width_m=float(np.linalg.norm(d)))
+
+
+def test_rect_to_pose_equals_its_numpy_form_bit_for_bit() -> None:
+    """Grasp poses feed the finger checks and the IK targets of every pick, so the faster form
+    must not move a bit: random rectangles on a noisy depth image with holes (odd and even counts
+    of valid pixels in the median's window), under a tilted and the top-down camera, plus rays
+    that miss the plane (the fallback) and a constant depth."""
+    rng = np.random.default_rng(11)
+    depth = (0.6 + rng.normal(scale=0.02, size=(120, 160))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.2] = 0.0
+    depth[rng.random(depth.shape) < 0.05] = np.nan
+    intrinsics = CameraIntrinsics.realsense_d435(160, 120)
+    cameras = [TOP_DOWN, _look_at(np.array([0.45, -0.45, 0.55]), np.array([0.45, 0.0, 0.0]))]
+    for i in range(400):
+        grasp = Grasp2D((float(rng.uniform(0, 159)), float(rng.uniform(0, 119))), float(rng.uniform(-1.6, 1.6)),
+                        float(rng.uniform(1, 300)), 10.0, 0.5)
+        camera = cameras[i % 2]
+        for source in (depth, float(rng.uniform(0.3, 0.9))):
+            ours, reference = rect_to_pose(grasp, source, intrinsics, camera), _reference_rect_to_pose(
+                grasp, source, intrinsics, camera)
+            assert np.array_equal(ours.position, reference.position)
+            assert ours.yaw == reference.yaw and ours.width_m == reference.width_m
+    # a camera looking along the table (optical axis = world x, image y = world down): the centre
+    # lies below the horizon and the upper jaw's ray points up, away from the grasp's plane, so
+    # that end is the fallback (the jaw at the centre's depth)
+    level = np.eye(4)
+    level[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    level[:3, 3] = (0.0, 0.0, 0.3)
+    grasp = Grasp2D((80.0, 70.0), math.pi / 2, 100.0, 10.0, 0.5)
+    ours, reference = rect_to_pose(grasp, 0.5, intrinsics, level), _reference_rect_to_pose(grasp, 0.5, intrinsics, level)
+    assert np.array_equal(ours.position, reference.position) and ours.width_m == reference.width_m
+    ray = level[:3, :3] @ intrinsics.deproject((80.0, 20.0), 1.0)  # the upper jaw's ray
+    assert ray[2] > 0 and (ours.position[2] - level[2, 3]) / ray[2] <= 0  # it takes the fallback
