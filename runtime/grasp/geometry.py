@@ -15,9 +15,7 @@ re-interpretation):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -224,15 +222,13 @@ def _as_transform(cam_to_world: npt.ArrayLike) -> FloatArray:
     return T
 
 
-def _ray_plane(
-    origin: FloatArray, direction: FloatArray, plane_z: float, fallback: Callable[[], FloatArray]
-) -> FloatArray:
-    """Intersect a world ray with the horizontal plane ``z = plane_z`` (``fallback()`` if the ray
-    is parallel to it or points away)."""
+def _ray_plane(origin: FloatArray, direction: FloatArray, plane_z: float) -> FloatArray | None:
+    """Intersect a world ray with the horizontal plane ``z = plane_z``; None if the ray is
+    parallel to it or points away."""
     if abs(direction[2]) < 1e-9:
-        return fallback()
+        return None
     t = (plane_z - origin[2]) / direction[2]
-    return fallback() if t <= 0 else origin + t * direction
+    return None if t <= 0 else origin + t * direction
 
 
 def rect_to_pose(
@@ -262,19 +258,12 @@ def rect_to_pose(
     ax, ay = grasp.axis_xy
     half = grasp.width_px / 2.0
     ends_uv = ((u - half * ax, v - half * ay), (u + half * ax, v + half * ay))
-    same_depth: list[FloatArray] = []  # the ends at the centre's depth: the fallback, made on demand
-
-    def at_centre_depth(i: int) -> FloatArray:
-        if not same_depth:
-            rows = [[(eu - cx) / fx * z, (ev - cy) / fy * z, z] for eu, ev in ends_uv]
-            same_depth.extend(np.array(rows) @ R.T + t)  # [2, 3], one product as before
-        return same_depth[i]
-
-    ends = [
-        _ray_plane(t, R @ np.array([(eu - cx) / fx * 1.0, (ev - cy) / fy * 1.0, 1.0]), float(position[2]),
-                   partial(at_centre_depth, i))
-        for i, (eu, ev) in enumerate(ends_uv)
-    ]
+    hits = [_ray_plane(t, R @ np.array([(eu - cx) / fx * 1.0, (ev - cy) / fy * 1.0, 1.0]), float(position[2]))
+            for eu, ev in ends_uv]
+    ends: list[FloatArray] = [h for h in hits if h is not None]
+    if len(ends) < 2:  # a jaw whose ray misses the plane is taken at the centre's depth instead
+        same_depth = np.array([[(eu - cx) / fx * z, (ev - cy) / fy * z, z] for eu, ev in ends_uv]) @ R.T + t
+        ends = [same_depth[i] if h is None else h for i, h in enumerate(hits)]
     d = ends[1] - ends[0]
     yaw = wrap_half_pi(math.atan2(float(d[1]), float(d[0])))
     return TopDownGrasp(position=position, yaw=yaw, width_m=float(np.linalg.norm(d)))
