@@ -24,7 +24,8 @@ def obj_emb(kbs: RuntimeKBs, name: str) -> np.ndarray[Any, np.dtype[np.float32]]
 
 def test_energies_of_one_roi_by_hand(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
-    g = Grounder(kb, GroundingSettings(temperature=0.07))
+    # the paper's plain softmax (the hubness correction's by-hand check: tests/test_hubness.py)
+    g = Grounder(kb, GroundingSettings(temperature=0.07, hubness=False))
     e = obj_emb(runtime_kbs, "hatchet")
     res = g.ground("cut", [ROI((0, 0, 10, 10), [0.2, 0.8], image_embedding=e)])
     r = res.ranked[0]

@@ -95,6 +95,12 @@ CavityCueOpt = Annotated[bool | None, typer.Option(
          "graph defines that property (CRAFT-E's; direct-LLM and ConceptNet ground without it); --no-cavity-cue "
          "reproduces runs from before the cue.",
     show_default=False)]
+HubnessOpt = Annotated[bool | None, typer.Option(
+    "--hubness/--no-hubness",
+    help="Read p(o|r) from each cosine less half the object name's hubness, its mean cosine to its 10 nearest "
+         "ImageNet class names (CSLS; grounding/hubness.py). Default: on for every bundle in ConSE's MiniLM text "
+         "space; --no-hubness reproduces runs from before the correction.",
+    show_default=False)]
 RelocateOpt = Annotated[bool, typer.Option(
     help="Before a pick, move the chosen grasp a few cm along its object (or turn it) when the overhead depth "
          "shows its approach blocked, keeping it when no nearby spot is clear (sim/relocate.py); "

@@ -55,6 +55,7 @@ def eval_sim(
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
     cavity_cue: ep.CavityCueOpt = None,
+    hubness: ep.HubnessOpt = None,
     classifier: ep.ClassifierOpt = None,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
@@ -72,7 +73,7 @@ def eval_sim(
     ep.check_labels(labels)
     ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
-                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue)
+                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,

@@ -45,6 +45,7 @@ def eval_static(
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
     cavity_cue: ep.CavityCueOpt = None,
+    hubness: ep.HubnessOpt = None,
     classifier: ep.ClassifierOpt = None,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
@@ -63,7 +64,7 @@ def eval_static(
     ep.check_labels(labels_path)
     ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
-                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue)
+                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness)
     ep.run_with_progress(
         lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,

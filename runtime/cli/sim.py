@@ -47,6 +47,7 @@ def demo(
     colour_cue: ep.ColourCueOpt = None,
     lookalikes: ep.LookalikesOpt = None,
     cavity_cue: ep.CavityCueOpt = None,
+    hubness: ep.HubnessOpt = None,
     beta: BetaOpt = None,
     gamma: GammaOpt = None,
 ) -> None:
@@ -109,7 +110,7 @@ def demo(
         spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)
         grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,
                                                                         lookalikes=lookalikes,
-                                                                        cavity_cue=cavity_cue),
+                                                                        cavity_cue=cavity_cue, hubness=hubness),
                                     sim_vocabulary())
     except CueUnavailableError as exc:
         fail(str(exc))

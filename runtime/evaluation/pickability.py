@@ -218,9 +218,10 @@ def evaluate_pickability(
     env_cfg = env_config or EnvConfig()
     chosen = check_assets(assets)
     specs = pickability_specs(chosen, layouts=layouts, seed=seed, env_config=env_cfg)
-    # the cavity cue off: grounding with E_grasp alone never reads p(o | r), and with the cue the
-    # records' diagnostic hypothesis would differ from the published runs' (made before it)
-    settings = settings or GroundingSettings(cavity_cue=False)
+    # the cavity cue and the hubness correction off: grounding with E_grasp alone never reads
+    # p(o | r), and with them the records' diagnostic hypothesis would differ from the published
+    # runs' (made before them)
+    settings = settings or GroundingSettings(cavity_cue=False, hubness=False)
     spec_m = method or pickability_method()
     enc = default_encoder(cfg.torch_threads)
     runnable, skipped = load_methods([spec_m], enc.text_encoder_id)

@@ -74,6 +74,12 @@ class Setting:
     lookalike_cue: bool = False
     classifier: str = "efficientnet-lite0"
     cavity_cue: bool = False
+    hubness: bool = False  # grounding/hubness.py (every row before it was measured without)
+
+    @property
+    def cues(self) -> tuple[bool, bool, bool, bool, bool]:
+        """What the setting's grounder weighs: the size, colour, look-alike and cavity cues and hubness."""
+        return self.size_cue, self.colour_cue, self.lookalike_cue, self.cavity_cue, self.hubness
 
 
 _LITE1 = "efficientnet-lite1"
@@ -108,8 +114,14 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("Lite1, overhead + active look + size cue", "Lite1, mean embedding of the 2x fit view and the look, "
             "size cue", "fused", "fit", size_cue=True, classifier=_LITE1),
     Setting("Lite1, 2x fit + size + cavity cue", "Lite1, 2x, fit; the size cue and the open cavity in the depth "
-            "weighed against the KB's 'is concave' (grounding/cavity_cue.py): the default since 2026-12-05", "2x", "fit", size_cue=True,
-            classifier=_LITE1, cavity_cue=True),
+            "weighed against the KB's 'is concave' (grounding/cavity_cue.py): the default of 2026-12-05", "2x", "fit",
+            size_cue=True, classifier=_LITE1, cavity_cue=True),
+    Setting("Lite1, 2x fit + hubness", "Lite1, 2x, fit; each cosine less half the name's hubness, its mean cosine "
+            "to its 10 nearest ImageNet class names (CSLS; grounding/hubness.py)", "2x", "fit", classifier=_LITE1,
+            hubness=True),
+    Setting("Lite1, 2x fit + size + cavity cue + hubness", "Lite1, 2x, fit; the size and cavity cues and the "
+            "hubness correction: the default since 2026-12-06", "2x", "fit", size_cue=True, classifier=_LITE1,
+            cavity_cue=True, hubness=True),
 )
 
 
@@ -232,10 +244,10 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
-    grounders = {(s.size_cue, s.colour_cue, s.lookalike_cue, s.cavity_cue): Grounder(bundle, GroundingSettings(
+    grounders = {s.cues: Grounder(bundle, GroundingSettings(
         vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue,
-        cavity_cue=s.cavity_cue)) for s in SETTINGS}
-    grounder = grounders[(False, False, False, False)]
+        cavity_cue=s.cavity_cue, hubness=s.hubness)) for s in SETTINGS}
+    grounder = grounders[(False, False, False, False, False)]
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in rendered])
@@ -263,7 +275,7 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
                 emb, classes = encode_with_classes(enc, [getattr(v, attr) for v in rendered])
                 rois = len(rendered)
             ms = 1000 * (time.perf_counter() - start) / rois
-            ranks = _ranks(grounders[(s.size_cue, s.colour_cue, s.lookalike_cue, s.cavity_cue)], emb, names,
+            ranks = _ranks(grounders[s.cues], emb, names,
                            extents if s.size_cue else None, colours if s.colour_cue else None,
                            classes if s.lookalike_cue else None, cavities if s.cavity_cue else None)
             rows.append({"setting": s.name, "description": s.description, "source": s.source,

@@ -576,7 +576,8 @@ def evaluate_sim(
                          "aff_mode": grounder.aff_mode, "size_cue": grounder.size_cue_active,
                          # only when on: results stored before the cue existed read the same
                          **({"colour_cue": True} if grounder.colour_cue_active else {}),
-                         **({"cavity_cue": True} if grounder.cavity_cue_active else {})})
+                         **({"cavity_cue": True} if grounder.cavity_cue_active else {}),
+                         **({"hubness": True} if grounder.hubness_active else {})})
         open_vocab = sorted(v for v in labels.verbs if not grounder.knows_verb(v))
         if open_vocab:
             row.notes.append("verbs not in the KB, grounded with the open-vocabulary fallback: "

@@ -507,7 +507,8 @@ def evaluate_static(
                     settings={"bundle": str(spec_m.bundle), "beta": spec_m.beta, "gamma": spec_m.gamma,
                               "size_cue": grounders[spec_m.name].size_cue_active,
                               **({"colour_cue": True} if grounders[spec_m.name].colour_cue_active else {}),
-                              **({"cavity_cue": True} if grounders[spec_m.name].cavity_cue_active else {})}))
+                              **({"cavity_cue": True} if grounders[spec_m.name].cavity_cue_active else {}),
+                              **({"hubness": True} if grounders[spec_m.name].hubness_active else {})}))
     config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),

@@ -58,6 +58,7 @@ from .energies import (
     verb_best_divisor,
     weight_matrices_from_graph,
 )
+from .hubness import HubnessUnavailableError, name_hubness, reference_for, with_hubness
 from .lookalike_cue import (
     LookalikeCueUnavailableError,
     lookalike_log_likelihood,
@@ -157,6 +158,9 @@ class Grounding:
     #: p(o | r) weighed some ROI's open cavity against the objects' "is concave" weights
     #: (``cavity_cue.py``)
     cavity_cue_used: bool = False
+    #: p(o | r) read each cosine less the name's hubness among the image encoder's labels
+    #: (``hubness.py``)
+    hubness_used: bool = False
 
     @property
     def abstained(self) -> bool:
@@ -195,6 +199,7 @@ class Grounding:
             "colour_cue_used": self.colour_cue_used,
             **({"lookalike_cue_used": True} if self.lookalike_cue_used else {}),
             **({"cavity_cue_used": True} if self.cavity_cue_used else {}),
+            **({"hubness_used": True} if self.hubness_used else {}),
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
             "abstained": self.abstained,
@@ -213,7 +218,8 @@ class Grounding:
                  f"{', scaled per verb' if st.aff_norm == 'verb-best' else ''}"
                  f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''}"
                  f"{', look-alike cue' if self.lookalike_cue_used else ''}"
-                 f"{', cavity cue' if self.cavity_cue_used else ''})"]
+                 f"{', cavity cue' if self.cavity_cue_used else ''}"
+                 f"{', hubness-corrected' if self.hubness_used else ''})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -413,6 +419,7 @@ class Grounder:
                 "the look-alike cue"))
         # a property check: only a bundle whose graph defines the property takes it (see cavity_cue.py)
         self._cavity_table = cavity_table(names, bundle) if self.settings.cavity_cue is not False else None
+        self._hubness = self._name_hubness(obj_emb)
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
         if self.settings.aff_norm == "verb-best":  # each verb by its best object in the bundle itself
             self._eaff = scale_negative(self._eaff, verb_best_divisor(full))
@@ -429,6 +436,21 @@ class Grounder:
         self._plans: dict[str, _VerbPlan] = {}
 
     # -- precomputation ------------------------------------------------------------------------
+
+    def _name_hubness(self, obj_emb: FloatArray) -> FloatArray | None:
+        """``[O]`` each vocabulary name's hubness among the image encoder's labels
+        (``grounding/hubness.py``), or None when the correction is off or has no labels."""
+        if self.settings.hubness is False:
+            return None
+        enc = self.bundle.manifest.text_encoder
+        reference = reference_for(enc.id, enc.weights_sha256)
+        if reference is None:
+            if self.settings.hubness is True:
+                raise HubnessUnavailableError(
+                    f"--hubness: the bundle {self.kb} embeds text with {enc.id}, whose space no image "
+                    "encoder here labels (the correction needs ConSE's MiniLM space); ground without --hubness")
+            return None
+        return name_hubness(obj_emb, reference)
 
     def _open_world(self, bundle: Bundle, form: EnergyForm, names: list[str], known: npt.NDArray[np.bool_],
                     idx: npt.NDArray[np.intp], obj_emb: FloatArray, object_min_confidence: float | None,
@@ -626,6 +648,11 @@ class Grounder:
         return self._cavity_table is not None
 
     @property
+    def hubness_active(self) -> bool:
+        """Whether ``p(o | r)`` reads cosines less the names' hubness (``grounding/hubness.py``)."""
+        return self._hubness is not None
+
+    @property
     def temperature(self) -> float:
         return self.settings.temperature
 
@@ -673,7 +700,10 @@ class Grounder:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
                              f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
         if p_obj is None:
-            p = object_hypotheses(emb @ self._obj_emb_t, self.temperature)  # [N, O]
+            cosine = emb @ self._obj_emb_t  # [N, O]
+            if self._hubness is not None:
+                cosine = with_hubness(cosine, self._hubness)
+            p = object_hypotheses(cosine, self.temperature)  # [N, O]
             if self._size_table is not None and extents is not None:
                 p = with_size_cue(p, size_log_likelihood(extents, self._size_table))
             if self._colour_table is not None and colours is not None:
@@ -759,6 +789,7 @@ class Grounder:
             request=plan.request, property_names=self.properties if plan.request is not None else [],
             notes=self._open_world_notes(plan, ranked), size_cue_used=size_cue_used,
             colour_cue_used=colour_cue_used, lookalike_cue_used=lookalike_cue_used, cavity_cue_used=cavity_cue_used,
+            hubness_used=bool(usable) and self._hubness is not None,
         )
 
     def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:

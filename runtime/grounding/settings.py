@@ -97,6 +97,12 @@ class GroundingSettings(BaseModel):
     #: others, direct-LLM's and ConceptNet's, ground without it), and only ROIs that carry a
     #: measured cavity are affected; ``False``: off (results stored before 2026-12-05's cue).
     cavity_cue: bool | None = None
+    #: p(o | r) reads each cosine less half the name's hubness, its mean cosine to its 10 nearest
+    #: labels of the image encoder (CSLS; ``grounding/hubness.py``). ``None`` (default): on for
+    #: every bundle in ConSE's text space (the labels are its ImageNet class names); ``True``:
+    #: required (a bundle in another space is an error); ``False``: off (results stored before
+    #: 2026-12-06's correction).
+    hubness: bool | None = None
 
     @field_validator("temperature", mode="before")
     @classmethod
@@ -151,4 +157,6 @@ class GroundingSettings(BaseModel):
             out["lookalikes"] = self.lookalikes
         if self.cavity_cue is not None:
             out["cavity_cue"] = self.cavity_cue
+        if self.hubness is not None:
+            out["hubness"] = self.hubness
         return out
