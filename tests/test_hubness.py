@@ -83,3 +83,22 @@ def test_requiring_it_in_another_text_space_names_the_problem(monkeypatch: pytes
     assert not Grounder(bundle).hubness_active  # default: grounds without it
     with pytest.raises(HubnessUnavailableError, match="--hubness: the bundle craft-e-default"):
         Grounder(bundle, GroundingSettings(hubness=True))
+
+
+def test_a_top_name_without_a_path_is_explained_by_the_next_hypothesis_that_has_one() -> None:
+    """E_aff is the expectation over hypotheses: when the most likely name has no verb -> property
+    path (a marker for *cut*), the explanation shows the paths of the next one that has (the knife)."""
+    from craft_e.runtime.perception.roi import ROI
+
+    bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
+    g = Grounder(bundle, GroundingSettings(vocabulary=["marker", "knife", "cup"], hubness=False))
+    assert not g.paths("cut", "marker") and g.paths("cut", "knife")
+    emb = bundle.embeddings["object"]
+    mix = 0.6 * emb[bundle.object_index["marker"]] + 0.4 * emb[bundle.object_index["knife"]]
+    result = g.ground("cut", [ROI((0, 0, 10, 10), [0.9], image_embedding=mix)])
+    best = result.ranked[0]
+    assert [h.name for h in best.hypotheses[:2]] == ["marker", "knife"]
+    assert best.paths and {p.obj for p in best.paths} == {"knife"}
+    assert "why 'knife' (hypothesis 2, p " in result.render() and "no path for 'marker')" in result.render()
+    only = g.ground("cut", [ROI((0, 0, 10, 10), [0.9], image_embedding=emb[bundle.object_index["knife"]])])
+    assert "why 'knife' affords 'cut':" in only.render()

@@ -263,7 +263,11 @@ class Grounding:
         if best.inference is not None:
             lines.append(best.inference.describe())
         if best.paths:
-            lines.append(f"why {top!r} affords {self.verb!r}:")
+            shown = best.paths[0].obj
+            rank = next((i for i, h in enumerate(best.hypotheses) if h.name == shown), 0)
+            who = (f"{shown!r}" if rank == 0 else f"{shown!r} (hypothesis {rank + 1}, p {best.hypotheses[rank].probability:.2f}; "
+                   f"no path for {top!r})")
+            lines.append(f"why {who} affords {self.verb!r}:")
             for p in sorted(best.paths, key=lambda p: -(p.w_vp + p.w_po))[:max_paths]:
                 rec = ",".join(k[:8] for k in p.provenance)
                 lines.append(f"  {p.verb} -({p.w_vp:.2f})-> {p.prop} -({p.w_po:.2f})-> {p.obj}   [{rec}]")
@@ -583,6 +587,18 @@ class Grounder:
         steps.sort(key=lambda s: -(s.w_vp * s.w_po))
         return steps[:limit]
 
+    def _explaining_paths(self, verb: str, hypotheses: Sequence[ObjectHypothesis]) -> list[PathStep]:
+        """The paths of the most probable hypothesis that has any (E_aff is the expectation over
+        hypotheses: a top name without a path adds nothing to it, and the next one explains it);
+        none when no hypothesis shown has a path."""
+        for h in hypotheses:
+            if h.name in self.inferred:
+                break  # an inferred object's support is not a path: the top-name rule applies
+            found = self.paths(verb, h.name)
+            if found:
+                return found
+        return []
+
     def paths(self, verb: str, obj: str) -> list[PathStep]:
         """verb -> property -> object paths (w_po >= tau) behind E_aff(verb, obj), cached."""
         key = (verb, obj)
@@ -777,7 +793,7 @@ class Grounder:
                 if plan.request is not None or obj in self.inferred:
                     paths = self._inferred_paths(plan, obj)
                 else:
-                    paths = self.paths(plan.explain_verb, obj) if plan.explain_verb else []
+                    paths = self._explaining_paths(plan.explain_verb, hyps) if plan.explain_verb else []
                 ranked.append(RankedROI(
                     index=usable[n], roi=rois[usable[n]], e_grasp=e_grasp[n], e_aff=e_aff[n],
                     e_align=e_align[n], total=total[n], grasp_index=best_grasp[n], hypotheses=hyps,

@@ -74,6 +74,10 @@ def explanation_lines(result: EpisodeResult, method: str, max_paths: int = 4) ->
              f"chosen roi{chosen.index}",
              f"E={chosen.total:.2f}  E_grasp={chosen.e_grasp:.2f}  E_aff={chosen.e_aff:.2f}  "
              f"E_align={chosen.e_align:.2f}"]
+    shown = chosen.paths[0].obj if chosen.paths else None
+    if top is not None and shown is not None and shown != top.name:  # the first hypothesis with a path
+        p_shown = next((h.probability for h in chosen.hypotheses if h.name == shown), 0.0)
+        lines.append(f"E_aff's path: '{shown}' (p={p_shown:.2f}; none for '{top.name}')")
     for path in sorted(chosen.paths, key=lambda q: -(q.w_vp + q.w_po))[:max_paths]:
         records = ",".join(k[:8] for k in path.provenance)
         lines.append(f"{path.verb} -({path.w_vp:.2f})-> {path.prop} -({path.w_po:.2f})-> {path.obj}  [{records}]")
