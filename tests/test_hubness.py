@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -102,3 +104,19 @@ def test_a_top_name_without_a_path_is_explained_by_the_next_hypothesis_that_has_
     assert "why 'knife' (hypothesis 2, p " in result.render() and "no path for 'marker')" in result.render()
     only = g.ground("cut", [ROI((0, 0, 10, 10), [0.9], image_embedding=emb[bundle.object_index["knife"]])])
     assert "why 'knife' affords 'cut':" in only.render()
+
+
+def test_an_unwritable_encoder_cache_costs_a_recomputation_not_the_answer(tmp_path: Path) -> None:
+    """Every grounder of a MiniLM bundle reads the class-name embeddings (its hubness reference);
+    where the cache folder cannot be written (here: a file stands where the folder should be) they
+    are computed and returned, and nothing is left behind."""
+
+    class Fake:
+        def embed(self, texts: list[str]) -> np.ndarray:
+            return np.arange(len(texts) * 4, dtype=np.float32).reshape(len(texts), 4)
+
+    blocked = tmp_path / "cache"
+    blocked.write_text("not a folder", encoding="utf-8")
+    emb = load_class_embeddings(blocked / "encoders", text_encoder=Fake())
+    assert emb.shape == (1000, 4) and emb[1, 0] == 4.0
+    assert blocked.read_text(encoding="utf-8") == "not a folder" and sorted(tmp_path.iterdir()) == [blocked]

@@ -15,6 +15,7 @@ hash), never pickled.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import json
@@ -107,10 +108,17 @@ def load_class_embeddings(
     batched = getattr(encoder, "embed_batched", None)
     vecs = batched(list(names)) if callable(batched) else encoder.embed(list(names))
     emb = np.asarray(vecs, dtype=np.float32)  # [1000, d]
-    cache_dir.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
-    save_file({"class_embeddings": emb}, str(tmp), metadata={"key": json.dumps(meta, sort_keys=True)})
-    tmp.replace(path)
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        save_file({"class_embeddings": emb}, str(tmp), metadata={"key": json.dumps(meta, sort_keys=True)})
+        tmp.replace(path)
+    except OSError:
+        # a cache, not an input: a read-only or full cache folder costs the next process this
+        # computation again, never the answer (every grounder of a MiniLM bundle reads these for
+        # its hubness correction, grounding/hubness.py, even where no image is encoded)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
     return emb
 
 
