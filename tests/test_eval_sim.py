@@ -6,15 +6,21 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from craft_e.runtime.evaluation.methods import select_methods
 from craft_e.runtime.evaluation.sim_eval import (
+    EpisodeSpec,
     LabelsError,
+    SimLabels,
     load_sim_labels,
     make_episode_specs,
+    objects_cut_by_view,
 )
 from craft_e.runtime.sim.assets import object_catalog
+from craft_e.runtime.sim.env import EnvConfig, SimEnv
+from craft_e.runtime.sim.episode import in_view_layout
 
 ROOT = Path(__file__).resolve().parents[1]
 DEV_LABELS = ROOT / "artifacts/labels/sim_dev_labels.csv"
@@ -55,6 +61,39 @@ def test_scenes_follow_the_protocol_and_do_not_depend_on_other_pairs() -> None:
     again = make_episode_specs(labels, layouts=2, max_pairs=1, min_gap=None)
     assert again == specs[:2]
     assert make_episode_specs(labels, layouts=1, max_pairs=1, seed=1, min_gap=None)[0] != specs[0]
+
+
+def test_objects_cut_by_view_reads_the_image_edge() -> None:
+    seg = np.full((6, 8), -1, dtype=np.int32)
+    seg[2:4, 2:5] = 7  # whole
+    seg[0:2, 5:7] = 9  # touches the top row
+    seg[3:5, 7] = 11  # touches the right column
+    assert objects_cut_by_view(seg, [7, 9, 11, 12]) == [9, 11]
+    with pytest.raises(ValueError, match="segmentation"):
+        objects_cut_by_view(None, [7])
+
+
+def _cut_bodies(spec: EpisodeSpec, config: EnvConfig) -> tuple[bool, list[int]]:
+    with SimEnv(config) as env:
+        scene = env.reset(spec.scene)
+        cut = objects_cut_by_view(env.capture().seg, [o.body_id for o in scene.objects])
+        return scene.target.body_id in cut, cut
+
+
+def test_scenes_keep_every_object_in_the_overhead_view() -> None:
+    """sim-dev's pour/pitcher_base/1, as drawn before the view check: the pitcher stood at the
+    image's top edge with its handle out of view, and no grasp was left on it. Now that draw is
+    redrawn; ``--no-in-view`` (``whole_in_view=False``) still gives the old scene."""
+    labels = load_sim_labels(DEV_LABELS)
+    pair = next(p for p in labels.pairs if (p.verb, p.object) == ("pour", "pitcher_base"))
+    one = SimLabels(labels.path, (pair,), labels.affording)
+    old_config = EnvConfig(layout=in_view_layout(False))
+    before = make_episode_specs(one, layouts=2, env_config=old_config)[1]
+    after = make_episode_specs(one, layouts=2)[1]
+    assert before.id == after.id == "pour/pitcher_base/1"
+    assert _cut_bodies(before, old_config)[0]  # the target itself was cut
+    assert _cut_bodies(after, EnvConfig()) == (False, [])
+    assert after.draws > before.draws and after.scene.target == before.scene.target
 
 
 def test_method_selection() -> None:

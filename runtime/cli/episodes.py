@@ -68,6 +68,10 @@ ActiveLookOpt = Annotated[bool, typer.Option(
     help="Before choosing, look again at the two lowest-energy regions from a camera 0.35 m away at 45° "
          "(as an on-arm camera could) and ground with both views (sim/active_look.py; its encoder pass counts "
          "as robot time).")]
+InViewOpt = Annotated[bool, typer.Option(
+    help="Redraw a scene in which the overhead camera sees some settled object only in part (its pixels "
+         "touch the image's edge), as a real testbed is set up in view; --no-in-view reproduces runs from "
+         "before 2026-12-06.")]
 PreferClearOpt = Annotated[bool, typer.Option(
     help="Use the clearance check as a preference: per region, the first grasp that passes the other checks "
          "with a clear approach, else the first that passes (never drops a region; sim/clearance.py).")]
@@ -182,7 +186,7 @@ class ProgressBar:
 def pick_pipeline(
     grasp: str, rois: str, threads: int, gripper: str, wrist_look: bool, clearance: bool, fine_collision: bool,
     landing_check: bool, relocate: bool, refine_grasps: bool, grasp_fallback: bool, *, prefer_clear: bool = False,
-    grasp_checks: bool = True, max_grasps: int = 5, active_look: bool = False,
+    grasp_checks: bool = True, max_grasps: int = 5, active_look: bool = False, in_view: bool = True,
 ) -> tuple[EnvConfig, PipelineConfig]:
     """The env and pipeline behind the sim commands' shared options (``eval sim``, ``eval
     pickability``, ``sim demo``), built one way; an invalid choice (an unknown gripper, grasp
@@ -195,7 +199,7 @@ def pick_pipeline(
 
     try:
         env_config, pick, fingers = sim_configs(gripper, wrist_look, clearance, fine_collision,
-                                                 landing_check, prefer_clear, relocate)
+                                                 landing_check, prefer_clear, relocate, in_view)
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers, refine=RefineConfig(enabled=refine_grasps),

@@ -57,6 +57,7 @@ def eval_sim(
     cavity_cue: ep.CavityCueOpt = None,
     hubness: ep.HubnessOpt = None,
     classifier: ep.ClassifierOpt = None,
+    in_view: ep.InViewOpt = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
@@ -68,7 +69,7 @@ def eval_sim(
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
                                           prefer_clear=prefer_clear, grasp_checks=grasp_checks,
-                                          max_grasps=max_grasps, active_look=active_look)
+                                          max_grasps=max_grasps, active_look=active_look, in_view=in_view)
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_labels(labels)
     ep.check_classifier(classifier)

@@ -47,12 +47,15 @@ def eval_static(
     cavity_cue: ep.CavityCueOpt = None,
     hubness: ep.HubnessOpt = None,
     classifier: ep.ClassifierOpt = None,
+    in_view: ep.InViewOpt = True,
 ) -> None:
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from ...paths import SIM_DEV_LABELS
     from ..evaluation.sim_eval import LabelsError
     from ..evaluation.static_eval import evaluate_static, parse_noise
     from ..sim.assets import SharedAssetsMissingError
+    from ..sim.env import EnvConfig
+    from ..sim.episode import in_view_layout
     from ..sim.placement import PlacementError
 
     labels_path = labels or SIM_DEV_LABELS
@@ -69,6 +72,7 @@ def eval_static(
         lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
                                     noise=levels, threads=threads, settings=settings, progress=bar,
-                                    jobs=jobs, classifier=classifier),
+                                    jobs=jobs, classifier=classifier,
+                                    env_config=EnvConfig(layout=in_view_layout(in_view))),
         "episodes", "scenes", json_out, markdown,
         (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, ValueError, RuntimeError))

@@ -40,6 +40,7 @@ def demo(
     clearance: ep.ClearanceOpt = False,
     relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
+    in_view: ep.InViewOpt = True,
     landing_check: ep.LandingCheckOpt = True,
     retries: ep.RetriesOpt = 0,
     active_look: ep.ActiveLookOpt = False,
@@ -75,7 +76,7 @@ def demo(
 
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
-                                          active_look=active_look)
+                                          active_look=active_look, in_view=in_view)
     try:
         all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
     except (ValueError, LabelsError) as exc:
@@ -96,7 +97,7 @@ def demo(
                 fail(f"{target!r} does not afford {name!r} in {all_labels.path}")
         pair = pairs[seed % len(pairs)]
         chosen_labels = SimLabels(all_labels.path, (pair,), all_labels.affording)
-        spec = make_episode_specs(chosen_labels, layouts=1, seed=seed)[0]
+        spec = make_episode_specs(chosen_labels, layouts=1, seed=seed, env_config=env_config)[0]
         stem = f"{name.replace(' ', '_')}_{seed}"
     bundle_path = kb or KB_DIR / "craft-e-default"
     try:

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ...files import sha256_file
 from ..grounding.grounder import normalize_verb_name
@@ -211,8 +212,11 @@ def placeable(assets: Sequence[str], scene_seed: int, placement: PlacementConfig
     return True
 
 
-def settled_apart(spec: SceneSpec, env_config: EnvConfig, min_gap: float) -> bool:
-    """Build the scene and check that, once settled, no two objects are closer than ``min_gap``.
+def settled_apart(spec: SceneSpec, env_config: EnvConfig, min_gap: float | None,
+                  whole_in_view: bool = False) -> bool:
+    """Build the scene and check that, once settled, no two objects are closer than ``min_gap``
+    (None: not checked) and, with ``whole_in_view``, that the overhead camera sees every object
+    whole (``objects_cut_by_view`` finds none).
 
     Placement keeps upright footprints apart, but a tall bottle may topple onto its neighbour
     while settling; the protocol asks for non-overlapping objects, so such a layout is redrawn.
@@ -224,11 +228,24 @@ def settled_apart(spec: SceneSpec, env_config: EnvConfig, min_gap: float) -> boo
     with SimEnv(env_config) as env:
         scene = env.reset(spec)
         bodies = [o.body_id for o in scene.objects]
-        for i, a in enumerate(bodies):
-            for b in bodies[i + 1:]:
-                if p.getClosestPoints(a, b, distance=min_gap, physicsClientId=env.client):
-                    return False
+        if min_gap is not None:
+            for i, a in enumerate(bodies):
+                for b in bodies[i + 1:]:
+                    if p.getClosestPoints(a, b, distance=min_gap, physicsClientId=env.client):
+                        return False
+        if whole_in_view and objects_cut_by_view(env.capture().seg, bodies):
+            return False
     return True
+
+
+def objects_cut_by_view(seg: npt.NDArray[np.integer[Any]] | None, bodies: Sequence[int]) -> list[int]:
+    """The ``bodies`` whose pixels in the segmentation ``seg`` touch the image's edge: the camera
+    sees them only in part (and their grasp, a handle or a cap, may be the part it misses)."""
+    if seg is None:
+        raise ValueError("the view check needs the segmentation buffer of a rendered frame")
+    edge = np.concatenate([seg[0], seg[-1], seg[:, 0], seg[:, -1]])
+    seen = set(np.unique(edge).tolist())
+    return [b for b in bodies if b in seen]
 
 
 def episode_rng(seed: int, verb: str, obj: str, layout: int) -> np.random.Generator:
@@ -250,7 +267,8 @@ def make_episode_specs(
     """``layouts`` scenes per pair (the first ``max_pairs`` pairs), in label-file order.
 
     A draw is kept if its footprints can be placed and, unless ``min_gap`` is None, the settled
-    scene keeps every two objects ``min_gap`` apart (this builds the scene once, ~0.5 s).
+    scene keeps every two objects ``min_gap`` apart, and (``PlacementConfig.whole_in_view``) the
+    overhead camera sees every settled object whole (this builds the scene once, ~0.5 s).
     """
     catalog = object_catalog()
     env_cfg = env_config or EnvConfig()
@@ -282,7 +300,8 @@ def make_episode_specs(
                 scene_seed = int(rng.integers(2**31 - 1))
                 scene = SceneSpec(pair.verb, target, tuple(distractors), scene_seed)
                 if placeable(scene.assets, scene_seed, place, env_cfg.physics.fine_collision) and (
-                    min_gap is None or settled_apart(scene, env_cfg, min_gap)
+                    (min_gap is None and not place.whole_in_view)
+                    or settled_apart(scene, env_cfg, min_gap, place.whole_in_view)
                 ):
                     break
             else:
@@ -591,6 +610,8 @@ def evaluate_sim(
         "image_encoder": enc.id, "vocabulary_size": len(sim_vocabulary()),
         "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
     }
+    if not env_cfg.layout.placement.whole_in_view:  # runs from before the check read the same
+        config_out["whole_in_view"] = False
     if retry is not None and retry.retries > 0:
         config_out["retries"] = retry.retries
     if cfg.pick.clearance.prefer:

@@ -514,7 +514,9 @@ def evaluate_static(
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),
               "noise": [lvl.label for lvl in levels], "image_encoder": enc.id, "detect_iou": DETECT_IOU,
               "energy_form": settings.energy_form or "bundle", "aff_mode": settings.aff_mode,
-              "gt_grasps": "oracle section rule, 1 cm along the long axis; every 15° for round footprints"}
+              "gt_grasps": "oracle section rule, 1 cm along the long axis; every 15° for round footprints",
+              # runs from before the check read the same
+              **({} if env_cfg.layout.placement.whole_in_view else {"whole_in_view": False})}
     return StaticReport(rows, skipped, episodes, config)
 
 

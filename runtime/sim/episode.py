@@ -31,7 +31,7 @@ from .gripper import GripperConfig
 from .hands import hand_spec
 from .robot import CR3Robot, IKSolution
 from .robot_urdf import FINGERTIP_BELOW_TCP
-from .scene import Scene
+from .scene import Scene, TableLayout
 from .wrist import WristConfig, look, recentre
 
 
@@ -85,13 +85,20 @@ class PickConfig:
     obstacle_margin: float = 0.03
 
 
+def in_view_layout(whole_in_view: bool = True) -> TableLayout:
+    """The testbed's table with ``PlacementConfig.whole_in_view`` set (``--in-view/--no-in-view``)."""
+    layout = TableLayout()
+    return dataclasses.replace(layout, placement=dataclasses.replace(layout.placement, whole_in_view=whole_in_view))
+
+
 def sim_configs(
     gripper: str, wrist_look: bool, clearance: bool = False, fine_collision: bool = True,
     landing_check: bool = True, prefer_clear: bool = False, relocate: bool = True,
+    whole_in_view: bool = True,
 ) -> tuple[EnvConfig, PickConfig, FingerGeometry]:
     """The env and pick settings behind the CLIs' ``--gripper``, ``--wrist-look``, ``--clearance``,
-    ``--prefer-clear``, ``--relocate`` and ``--fine-collision``, and the hand's finger geometry for the grasp
-    checks (``PipelineConfig.fingers``; ``--landing-check``).
+    ``--prefer-clear``, ``--relocate``, ``--fine-collision`` and ``--in-view``, and the hand's finger
+    geometry for the grasp checks (``PipelineConfig.fingers``; ``--landing-check``).
 
     Raises ValueError for an unknown gripper (the message lists the choices).
     """
@@ -100,7 +107,8 @@ def sim_configs(
     pick = dataclasses.replace(pick, wrist=dataclasses.replace(pick.wrist, enabled=wrist_look),
                                clearance=dataclasses.replace(pick.clearance, enabled=clearance,
                                                              prefer=prefer_clear, relocate=relocate))
-    env = EnvConfig(gripper=GripperConfig(hand=spec.name), physics=PhysicsConfig(fine_collision=fine_collision))
+    env = EnvConfig(gripper=GripperConfig(hand=spec.name), physics=PhysicsConfig(fine_collision=fine_collision),
+                    layout=in_view_layout(whole_in_view))
     return env, pick, dataclasses.replace(spec.fingers, check_landing=landing_check)
 
 
