@@ -10,7 +10,14 @@ import pytest
 
 from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.episode import Outcome, PickResult, execute_pick, release_spots
+from craft_e.runtime.sim.episode import (
+    Outcome,
+    PickConfig,
+    PickResult,
+    execute_pick,
+    plan_pick,
+    release_spots,
+)
 from craft_e.runtime.sim.oracle import oracle_grasp
 from craft_e.runtime.sim.scene import SceneSpec
 
@@ -80,6 +87,19 @@ def test_no_grasp_and_unreachable_grasp_end_without_moving(env: SimEnv) -> None:
     assert unreachable.outcome is Outcome.IK_FAILURE and unreachable.steps == 0
     assert "unreachable" in unreachable.detail
     assert np.array_equal(env.robot.joint_positions(), q0)
+
+
+def test_a_high_grasp_at_the_far_edge_comes_in_from_a_shorter_approach(env: SimEnv) -> None:
+    """sim-val's serve/pitcher/2: the pitcher's handle, 23 cm up and 50 cm out, has its 10 cm
+    pre-grasp out of the arm's reach; from 5 cm above it the whole pick plans. Farther out even
+    that is out of reach, and the reason names both heights."""
+    env.reset(EASY)
+    handle = TopDownGrasp(position=np.array([0.505, 0.035, 0.226]), yaw=0.0, width_m=0.03)
+    only_ten = plan_pick(env, handle, PickConfig(short_approach_heights=()))
+    assert only_ten is not None and only_ten.startswith("pre-grasp (0.505, 0.035, 0.296) unreachable")
+    assert plan_pick(env, handle, PickConfig()) is None
+    farther = TopDownGrasp(position=np.array([0.55, 0.0, 0.2]), yaw=0.0, width_m=0.03)
+    assert plan_pick(env, farther, PickConfig()) == "pre-grasp (0.550, 0.000, 0.270) unreachable, nor 5 cm above the grasp"
 
 
 def test_release_spots_put_the_seen_centre_over_the_zone_then_fall_back_to_the_tcp() -> None:

@@ -54,6 +54,11 @@ class PickConfig:
     """Heights and tolerances of the pick (metres)."""
 
     approach_height: float = 0.10  # pre-grasp above the grasp pose
+    # Tried in turn when the pre-grasp at approach_height is out of the arm's reach: a tall
+    # object near the table's far edge (a pitcher's handle 20 cm up, 50 cm out) puts a 10 cm
+    # pre-grasp past what the CR3 reaches with the hand pointing down (sim-val's serve/pitcher/2:
+    # a 5 cm approach reaches it and the pick succeeds). Only such picks change.
+    short_approach_heights: tuple[float, ...] = (0.05,)
     insertion_depth: float = 0.03  # TCP below the grasped surface point
     # finger tips above the table at the lowest. 4 mm left the pads on the rounded top edges of
     # flat objects (a wrench handle is ~1 cm thick), squeezing them down instead of across: of
@@ -202,9 +207,14 @@ def _approach(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfi
         table_z + FINGERTIP_BELOW_TCP + cfg.table_clearance,
     )
     yaw = robot.nearest_yaw(grasp.yaw, robot.tcp_pose().yaw)
-    pre = robot.solve_ik((x, y, grasp_z + cfg.approach_height), yaw)
-    if not pre.ok(robot.config):
-        return f"pre-grasp ({x:.3f}, {y:.3f}, {grasp_z + cfg.approach_height:.3f}) unreachable"
+    heights = (cfg.approach_height, *cfg.short_approach_heights)
+    for height in heights:
+        pre = robot.solve_ik((x, y, grasp_z + height), yaw)
+        if pre.ok(robot.config):
+            break
+    else:
+        lower = "".join(f", nor {h * 100:.0f} cm above the grasp" for h in heights[1:])
+        return f"pre-grasp ({x:.3f}, {y:.3f}, {grasp_z + cfg.approach_height:.3f}) unreachable{lower}"
     descent = robot.plan_linear(pre.q, (x, y, grasp_z), yaw)
     if not _all_ok(robot, descent):
         return f"grasp pose ({x:.3f}, {y:.3f}, {grasp_z:.3f}) unreachable"
