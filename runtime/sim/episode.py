@@ -55,7 +55,7 @@ class PickConfig:
 
     approach_height: float = 0.10  # pre-grasp above the grasp pose
     # Tried in turn when the pre-grasp at approach_height is out of the arm's reach: a tall
-    # object near the table's far edge (a pitcher's handle 20 cm up, 50 cm out) puts a 10 cm
+    # object near the table's far edge (a pitcher's handle 23 cm up, 50 cm out) puts a 10 cm
     # pre-grasp past what the CR3 reaches with the hand pointing down (sim-val's serve/pitcher/2:
     # a 5 cm approach reaches it and the pick succeeds). Only such picks change.
     short_approach_heights: tuple[float, ...] = (0.05,)
