@@ -67,9 +67,9 @@ def cavity_table(names: Sequence[str], bundle: Bundle) -> FloatArray | None:
     """``P_seen(o)`` ``[O]`` for ``names`` in order, or ``None`` when the bundle's graph has no
     "is concave" property or does not know every name as an object (a name the graph does not
     hold would read as "not hollow", which is not what the graph says)."""
-    graph = bundle.graph
+    graph = bundle.index
     edges = graph.property_objects.get(CONCAVE_PROPERTY)
-    known = {n.name for n in graph.nodes if n.kind == "object"}
+    known = graph.object_names
     if not names or edges is None or any(n not in known for n in names):
         return None
     weight = {e.target_name: e.weight for e in edges}

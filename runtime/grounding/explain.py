@@ -93,7 +93,7 @@ def explain_pair(bundle: Bundle, verb: str, obj: str) -> Explanation:
     o = _resolve("object", obj, m.objects, kb)
     row = bundle.energy[bundle.verb_index[v]]  # [O]
     e = float(row[bundle.object_index[o]])
-    g = bundle.graph
+    g = bundle.index  # lookups only: no models of every edge for one explanation
     roles: dict[str, str] = dict(g.roles(v))
     definitions = {prop: d for prop in roles if (d := g.definition(prop)) is not None}
     return Explanation(

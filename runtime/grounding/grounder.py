@@ -342,10 +342,10 @@ def affordance_energy_in_form(bundle: Bundle, form: EnergyForm) -> FloatArray:
     check_energy_form(form)
     if form == m.energy.form:
         return bundle.energy
-    w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
-    required = required_matrix_from_graph(bundle.graph, m.verbs, m.properties)  # [V, P]
+    w_vp, w_po = weight_matrices_from_graph(bundle.index, m.verbs, m.properties, m.objects)
+    required = required_matrix_from_graph(bundle.index, m.verbs, m.properties)  # [V, P]
     energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form, required=required)
-    for v, o in bundle.graph.forbidden_pairs():
+    for v, o in bundle.index.forbidden_pairs():
         if v in bundle.verb_index and o in bundle.object_index:
             energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
     return energy
@@ -403,7 +403,8 @@ class Grounder:
         if self.objects_without_knowledge:
             obj_emb[~known] = self._encoder().embed(self.objects_without_knowledge)
         self._obj_emb_t = np.ascontiguousarray(_unit_rows(obj_emb).T)  # [d, O]
-        self._eaff = np.where(known[None, :], full[:, idx], 0.0).astype(np.float32)  # [V, O]
+        self._eaff = full[:, idx].astype(np.float32, copy=False)  # [V, O] (a copy: fancy indexing)
+        self._eaff[:, ~known] = 0.0  # no path to a name the bundle does not know
         self._verb_query = _unit_rows(bundle.embeddings["verb_query"])  # [V, d]
         self._verb_emb = _unit_rows(bundle.embeddings["verb"])  # [V, d]
         self.dim = int(obj_emb.shape[1])
@@ -429,13 +430,13 @@ class Grounder:
             self._eaff = scale_negative(self._eaff, verb_best_divisor(full))
 
         self._forbidden: dict[str, frozenset[str]] = {}
-        for v, o in bundle.graph.forbidden_pairs():
+        for v, o in bundle.index.forbidden_pairs():
             self._forbidden[v] = self._forbidden.get(v, frozenset()) | {o}
         tau = m.energy.tau
         # record ids of the linking property -> object edges (w_po >= tau), for explanations
         self._po_records: dict[tuple[str, str], tuple[str, ...]] = {
             (p, e.target_name): tuple(e.provenance)
-            for p, edges in bundle.graph.property_objects.items() for e in edges if e.weight >= tau and e.weight > 0}
+            for p, edges in bundle.index.property_objects.items() for e in edges if e.weight >= tau and e.weight > 0}
         self._paths: dict[tuple[str, str], list[PathStep]] = {}
         self._plans: dict[str, _VerbPlan] = {}
 
@@ -463,8 +464,8 @@ class Grounder:
         similar KB objects, ``runtime/grounding/open_world.py``) and the request-mapping parameters."""
         m = bundle.manifest
         tau = m.energy.tau
-        self._w_vp, w_po = weight_matrices_from_graph(bundle.graph, m.verbs, m.properties, m.objects)
-        self._required = required_matrix_from_graph(bundle.graph, m.verbs, m.properties)
+        self._w_vp, w_po = weight_matrices_from_graph(bundle.index, m.verbs, m.properties, m.objects)
+        self._required = required_matrix_from_graph(bundle.index, m.verbs, m.properties)
         self._spec = property_specificity(w_po, tau=tau)
         self.properties = list(m.properties)
         self._prop_index = {p: i for i, p in enumerate(self.properties)}
@@ -579,7 +580,7 @@ class Grounder:
                 prov = ("inferred",) if inferred or records is None else records
                 steps.append(PathStep(plan.request.task, prop, obj, round(float(w[p]), 4), round(w_po, 4), prov))
         elif plan.explain_verb is not None and inferred:
-            for vp in self.bundle.graph.verb_properties.get(plan.explain_verb, []):
+            for vp in self.bundle.index.verb_properties.get(plan.explain_verb, []):
                 w_po = float(self._col_w[self._prop_index[vp.target_name], j])
                 if w_po > 0:
                     steps.append(PathStep(plan.explain_verb, vp.target_name, obj, vp.weight, round(w_po, 4),

@@ -25,8 +25,10 @@ from ...schemas.v1.bundle import (
     Manifest,
 )
 from ...schemas.v1.graph import KnowledgeGraph
+from ...schemas.v1.graph_wire import GraphWire, graph_wire_problem, validate_graph_json
 from ..encoders.conse import imagenet_class_index
 from .colours import COLOURS_FILE, TypicalColours, parse_colours
+from .graph_index import GraphIndex
 from .lookalikes import LOOKALIKES_FILE, Lookalikes, parse_lookalikes
 from .sizes import SIZES_FILE, SizesError, TypicalSize, parse_sizes
 from .verify import (
@@ -59,11 +61,16 @@ class PathStep:
 
 @dataclass
 class Bundle:
-    """A verified bundle in memory. Arrays are indexed in manifest order."""
+    """A verified bundle in memory. Arrays are indexed in manifest order.
+
+    ``graph_data`` is ``graph.json`` as checked at load (plain data, every constraint of
+    :class:`KnowledgeGraph` already met); ``graph`` makes the models of it the first time it is
+    asked for (``schemas/v1/graph_wire.py``: at 150,000 edges that is a second, which loading
+    no longer spends), and ``index`` the lookups grounding needs, without models."""
 
     path: Path
     manifest: Manifest
-    graph: KnowledgeGraph
+    graph_data: GraphWire = field(repr=False)
     energy: FloatArray  # [V, O] E_aff
     embeddings: dict[str, FloatArray]  # verb [V,d], verb_query [V,d], object [O,d], property [P,d]
     report: BundleReport
@@ -75,6 +82,16 @@ class Bundle:
     #: object_lookalikes.json: ImageNet classes photos of each object get (empty: none recorded,
     #: or an older bundle)
     lookalikes: dict[str, Lookalikes] = field(default_factory=dict)
+
+    @cached_property
+    def graph(self) -> KnowledgeGraph:
+        """The verb -> property -> object graph as models (built once, from ``graph_data``)."""
+        return parse_graph(self.path, self.graph_data)
+
+    @cached_property
+    def index(self) -> GraphIndex:
+        """What grounding reads of the graph, without its models (``graph_index.py``)."""
+        return GraphIndex.from_wire(self.graph_data)
 
     @cached_property
     def verb_index(self) -> dict[str, int]:
@@ -89,7 +106,7 @@ class Bundle:
         and/or object)."""
         result: list[PathStep] = []
         tau = self.manifest.energy.tau
-        g = self.graph
+        g = self.index
         for v in [verb] if verb is not None else self.manifest.verbs:
             for vp in g.verb_properties.get(v, []):
                 for po in g.property_objects.get(vp.target_name, []):
@@ -134,7 +151,10 @@ def load_bundle(
                 "bundle with the runtime's encoder"
             )
     try:
-        raw_graph = json.loads(data["graph.json"])
+        graph_data = validate_graph_json(data["graph.json"])
+    except ValidationError as exc:  # malformed JSON, or a constraint of the graph broken
+        raise BundleError(f"{folder / 'graph.json'}: {graph_wire_problem(exc)}; rebuild the bundle") from None
+    try:
         energy = np.load(io.BytesIO(data["affordance_energy.npy"]), allow_pickle=False)
         embeddings = {
             k: np.asarray(v, dtype=np.float32)
@@ -146,7 +166,6 @@ def load_bundle(
         raise BundleError(
             f"{folder}: a bundle file does not parse ({exc}); rebuild the bundle"
         ) from None
-    graph = parse_graph(folder, raw_graph)
     check_content(folder, manifest, energy, embeddings)
     if open_world is not None and not isinstance(open_world, dict):
         raise BundleError(f"{folder / 'open_world.json'}: not a JSON object; rebuild the bundle")
@@ -159,7 +178,7 @@ def load_bundle(
                       if LOOKALIKES_FILE in data else {})
     except SizesError as exc:  # ColoursError and LookalikesError are ones
         raise BundleError(str(exc)) from None
-    return Bundle(folder, manifest, graph, energy.astype(np.float32), embeddings, report, open_world,
+    return Bundle(folder, manifest, graph_data, energy.astype(np.float32, copy=False), embeddings, report, open_world,
                   sizes, colours, lookalikes)
 
 

@@ -69,7 +69,10 @@ def read_regular_file(path: Path, cap: int, expected: int | None = None) -> byte
         left = info.st_size
         with os.fdopen(os.dup(fd), "rb") as handle:
             while left > 0:
-                chunk = handle.read(min(left, 1 << 20))
+                # the whole rest at once: a regular file comes in one chunk, which ``join`` then
+                # returns as it is (1 MB chunks made it copy every file once more: 0.13 s of a
+                # 220 MB bundle's load)
+                chunk = handle.read(left)
                 if not chunk:
                     break
                 chunks.append(chunk)

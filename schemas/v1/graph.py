@@ -3,8 +3,9 @@
 Node ids are ``verb:<name>``, ``prop:<name>``, ``obj:<name>``; edges go verb -> property (``w_vp``,
 with a ``role`` in v2 KBs) and property -> object (``w_po``), each with the record ids it came
 from. The compiler writes it (``compiler/graph.py``); everything that reads it — the runtime's
-energies, grounding and explanations, ``craftc diff`` — goes through :class:`KnowledgeGraph`,
-parsed and validated once when the bundle is loaded.
+explanations, ``craftc diff`` — goes through :class:`KnowledgeGraph`. A runtime bundle checks
+its ``graph.json`` against the same constraints at load (``graph_wire.py``), grounds from plain
+lookups of it (``runtime/kb/graph_index.py``) and makes these models only when a reader asks.
 """
 
 from __future__ import annotations
