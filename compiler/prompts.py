@@ -11,6 +11,7 @@ key: editing a template means a new version file, which addresses new records.
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 from dataclasses import dataclass
 from functools import cache
@@ -88,7 +89,8 @@ class PromptTemplate:
         return VERSIONED_PAYLOADS.get(self.ref, PAYLOADS[self.prompt_id])
 
     def response_schema(self) -> dict[str, Any]:
-        return self.payload_model.model_json_schema()
+        """The payload's JSON Schema, a fresh copy per call (callers may keep or change it)."""
+        return json.loads(_schema_text(self.payload_model))
 
     def render(self, **variables: Any) -> list[Message]:
         """Fill the placeholders; a missing variable is a template error, not a silent blank."""
@@ -99,6 +101,14 @@ class PromptTemplate:
             ]
         except KeyError as exc:
             raise PromptError(f"{self.path}: placeholder {exc} has no value") from exc
+
+
+@cache
+def _schema_text(model: type[BaseModel]) -> str:
+    """``model``'s JSON Schema as text, made once per payload model: every request of a build
+    carries it (and its key hashes it), and pydantic regenerating it per request was 40 % of a
+    warm 1,000 x 10,000 rebuild (``benchmarks/bench_scale.py --profile``)."""
+    return json.dumps(model.model_json_schema())
 
 
 @cache

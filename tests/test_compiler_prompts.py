@@ -110,3 +110,15 @@ def test_template_errors(tmp_path: Path) -> None:
     template = load_prompt("verb_properties", "v8", prompts)
     with pytest.raises(PromptError, match="placeholder 'missing' has no value"):
         template.render(verb="cut")
+
+
+@pytest.mark.parametrize("template", sorted(PROMPTS_DIR.glob("*.v*.md")), ids=lambda p: p.stem)
+def test_the_response_schema_is_the_payloads_and_each_call_gets_its_own(template: Path) -> None:
+    """The schema is made once per payload model (a warm rebuild asked pydantic for it 31,000
+    times); it must stay pydantic's, key for key and in order, and a caller's edit must not leak."""
+    prompt_id, version = template.stem.rsplit(".", 1)
+    loaded = load_prompt(prompt_id, version)
+    first = loaded.response_schema()
+    assert json.dumps(first) == json.dumps(loaded.payload_model.model_json_schema())
+    first["title"] = "edited"
+    assert loaded.response_schema()["title"] != "edited"
