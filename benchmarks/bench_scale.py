@@ -589,7 +589,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--markdown", type=output_file, default=None, help="write the table here")
     parser.add_argument("--workdir", default=None,
                         help="scratch folder (default: a new temporary folder, removed after)")
-    parser.add_argument("--step", choices=sorted(STEPS), help=argparse.SUPPRESS)
+    parser.add_argument("--step", choices=sorted(STEPS),
+                        help="run one step alone, in this process, on the size folder --workdir holds "
+                             "(e.g. DIR/1000x10000 of a run with --workdir DIR): how a run calls its "
+                             "children, and how two versions of the code are compared on one KB "
+                             "(build: a warm build and its content hash; runtime: load, Grounder(), ground())")
     parser.add_argument("--n-verbs", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--n-objects", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--profile-out", help=argparse.SUPPRESS)
