@@ -90,7 +90,8 @@ class PromptTemplate:
 
     def response_schema(self) -> dict[str, Any]:
         """The payload's JSON Schema, a fresh copy per call (callers may keep or change it)."""
-        return json.loads(_schema_text(self.payload_model))
+        schema: dict[str, Any] = json.loads(_schema_text(self.payload_model))
+        return schema
 
     def render(self, **variables: Any) -> list[Message]:
         """Fill the placeholders; a missing variable is a template error, not a silent blank."""

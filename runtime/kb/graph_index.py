@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from ...schemas.v1.graph import PREFIX, GraphEdge, KnowledgeGraph, Role
+from ...schemas.v1.graph import PREFIX, EdgeWeights, GraphEdge, KnowledgeGraph, Role
 from ...schemas.v1.graph_wire import GraphWire
 
 
@@ -32,9 +32,10 @@ class IndexedEdge(NamedTuple):
 
 
 @dataclass(frozen=True)
-class GraphIndex:
+class GraphIndex(EdgeWeights):
     """Edges grouped by source name, in file order (as ``KnowledgeGraph.verb_properties`` and
-    ``property_objects``), the object names, the "never pick" pairs and each node's texts."""
+    ``property_objects``), the object names, the "never pick" pairs and each node's texts; the
+    weights and roles come from ``EdgeWeights``, as ``KnowledgeGraph``'s do."""
 
     verb_properties: dict[str, list[IndexedEdge]]
     property_objects: dict[str, list[IndexedEdge]]
@@ -70,18 +71,6 @@ class GraphIndex:
         return cls(group(graph.verb_properties), group(graph.property_objects),
                    frozenset(n.name for n in graph.nodes if n.kind == "object"),
                    tuple(graph.forbidden_pairs()), {n.id: (n.gloss, n.definition) for n in graph.nodes})
-
-    def vp_weights(self) -> dict[tuple[str, str], float]:
-        """``(verb, property) -> w_vp`` (the last edge of a pair wins, as in ``KnowledgeGraph``)."""
-        return {(v, e.target_name): e.weight for v, es in self.verb_properties.items() for e in es}
-
-    def po_weights(self) -> dict[tuple[str, str], float]:
-        """``(property, object) -> w_po``."""
-        return {(p, e.target_name): e.weight for p, es in self.property_objects.items() for e in es}
-
-    def roles(self, verb: str) -> dict[str, Role]:
-        """property -> role of ``verb``'s properties that have one (v2 KBs)."""
-        return {e.target_name: e.role for e in self.verb_properties.get(verb, []) if e.role is not None}
 
     def forbidden_pairs(self) -> list[tuple[str, str]]:
         """``(verb, object)`` pairs a KB author marked "never pick"."""

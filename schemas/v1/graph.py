@@ -11,8 +11,9 @@ lookups of it (``runtime/kb/graph_index.py``) and makes these models only when a
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from functools import cached_property
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -71,7 +72,48 @@ class GraphEdge(BaseModel):
         return self.target.split(":", 1)[1]
 
 
-class KnowledgeGraph(BaseModel):
+class TargetedEdge(Protocol):
+    """An edge seen from its source: a ``GraphEdge``, or the runtime's lighter
+    ``runtime/kb/graph_index.IndexedEdge`` of the same fields."""
+
+    @property
+    def target_name(self) -> str: ...
+
+    @property
+    def weight(self) -> float: ...
+
+    @property
+    def role(self) -> Role | None: ...
+
+
+class GroupedEdges(Protocol):
+    """A graph whose edges are grouped by source name, in file order."""
+
+    @property
+    def verb_properties(self) -> Mapping[str, Sequence[TargetedEdge]]: ...
+
+    @property
+    def property_objects(self) -> Mapping[str, Sequence[TargetedEdge]]: ...
+
+
+class EdgeWeights:
+    """The weights and roles of a graph's grouped edges, for ``KnowledgeGraph`` and the
+    runtime's ``GraphIndex`` alike (one definition, so the two cannot drift apart)."""
+
+    def vp_weights(self: GroupedEdges) -> dict[tuple[str, str], float]:
+        """``(verb, property) -> w_vp`` (the last edge of a pair wins)."""
+        return {(v, e.target_name): e.weight for v, es in self.verb_properties.items() for e in es}
+
+    def po_weights(self: GroupedEdges) -> dict[tuple[str, str], float]:
+        """``(property, object) -> w_po``."""
+        return {(p, e.target_name): e.weight for p, es in self.property_objects.items() for e in es}
+
+    def roles(self: GroupedEdges, verb: str) -> dict[str, Role]:
+        """property -> role of ``verb``'s properties that have one (v2 KBs)."""
+        return {e.target_name: e.role for e in self.verb_properties.get(verb, []) if e.role is not None}
+
+
+class KnowledgeGraph(EdgeWeights, BaseModel):
     """The whole graph, with the lookups every reader needs (built once, on first use)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra={"$id": GRAPH_SCHEMA_ID})
@@ -101,18 +143,6 @@ class KnowledgeGraph(BaseModel):
             if not e.verb_property:
                 out.setdefault(e.source_name, []).append(e)
         return out
-
-    def vp_weights(self) -> dict[tuple[str, str], float]:
-        """``(verb, property) -> w_vp``."""
-        return {(v, e.target_name): e.weight for v, es in self.verb_properties.items() for e in es}
-
-    def po_weights(self) -> dict[tuple[str, str], float]:
-        """``(property, object) -> w_po``."""
-        return {(p, e.target_name): e.weight for p, es in self.property_objects.items() for e in es}
-
-    def roles(self, verb: str) -> dict[str, Role]:
-        """property -> role of ``verb``'s properties that have one (v2 KBs)."""
-        return {e.target_name: e.role for e in self.verb_properties.get(verb, []) if e.role is not None}
 
     # -- nodes -----------------------------------------------------------------------------------
 
