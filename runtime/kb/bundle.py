@@ -233,10 +233,8 @@ def parse_graph(folder: Path, raw: Any) -> KnowledgeGraph:
     (a weight that is a string, a missing list, an id that is not ``<kind>:<name>``)."""
     try:
         return KnowledgeGraph.model_validate(raw)
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "graph"
-        raise BundleError(f"{folder / 'graph.json'}: {where!r}: {first['msg']}; rebuild the bundle") from None
+    except ValidationError as exc:  # the same words as the check at load (``graph_wire_problem``)
+        raise BundleError(f"{folder / 'graph.json'}: {graph_wire_problem(exc)}; rebuild the bundle") from None
 
 
 def _load_packed(
