@@ -19,6 +19,7 @@ from ..perception.observation import Observation
 from .assets import object_asset
 from .camera import Camera, render
 from .collision_meshes import sim_urdf
+from .masses import sim_mass
 from .placement import (
     Footprint,
     PlacementConfig,
@@ -197,6 +198,9 @@ def _load_object(
         restitution=0.0,
         physicsClientId=client,
     )
+    mass = sim_mass(asset)
+    if mass is not None:  # the URDF's placeholder gram (masses.py); pybullet rescales the inertia
+        p.changeDynamics(body, -1, mass=mass, physicsClientId=client)
     lo, hi = p.getAABB(body, -1, physicsClientId=client)
     return int(body), np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
 

@@ -1,0 +1,77 @@
+"""Masses for the assets whose URDF states none.
+
+The URDF converter behind ``shared/assets`` writes ``<mass value="0.001"/>`` (with a unit-ish
+``1e-3`` inertia) where it had no mass. One asset carries it: ``a_marbles``, a 9 × 8 × 7 cm body
+of 178 cm³ (its collision hulls) weighing 1 g. pybullet takes the gram literally, and the fingers'
+first contacts bat such a body away: alone on the table it was missed in 3 of 3 poses, "fingers
+closed on nothing" (``craft eval pickability --asset a_marbles``), while the same body at 50 g or
+200 g was picked in 3 of 3 (ad hoc, the mass set after loading). A real bag of glass marbles
+weighs far more than either.
+
+The rule, from the catalogue alone: a stated mass at the placeholder is read as unknown, and the
+body gets its collision volume times the catalogue's median density (the stated mass over the
+hull volume of every asset with a stated mass, ~0.74 g/cm³), ~131 g for the marbles. Every other
+stated mass is used as written, light ones included (the 6 g sponge is a real 6 g sponge).
+
+This is the simulator's physics, like the finer collision meshes (``collision_meshes.py``):
+nothing here reaches perception, grounding or the grasp checks.
+"""
+
+from __future__ import annotations
+
+import statistics
+import xml.etree.ElementTree as ET
+from functools import cache
+
+from .assets import ObjectAsset, object_catalog
+from .collision_meshes import hulls_volume, shipped_parts
+
+PLACEHOLDER_MASS_KG = 0.001
+
+
+class AssetMassError(ValueError):
+    """An asset URDF whose ``<inertial><mass>`` is missing or not a number."""
+
+
+@cache
+def stated_mass(asset: ObjectAsset) -> float:
+    """The mass (kg) the asset's URDF states for its one link."""
+    root = ET.parse(asset.urdf_path).getroot()
+    mass = root.find("link/inertial/mass")
+    value = None if mass is None else mass.get("value")
+    try:
+        return float(value) if value is not None else float("nan")
+    except ValueError:
+        raise AssetMassError(
+            f"{asset.urdf_path}: <inertial><mass value={value!r}> is not a number; "
+            "give the link's mass in kg"
+        ) from None
+
+
+def is_placeholder(mass: float) -> bool:
+    """True for the converter's "no mass" value (or a missing one)."""
+    return not mass > PLACEHOLDER_MASS_KG
+
+
+@cache
+def hull_volume(asset: ObjectAsset) -> float:
+    """Volume (m³) of the convex parts pybullet collides through, at the asset's scale."""
+    return hulls_volume(shipped_parts(asset)) * asset.scale**3
+
+
+@cache
+def median_density() -> float:
+    """Median of stated mass / hull volume (kg/m³) over the catalogue's assets with a mass."""
+    densities = [
+        stated_mass(a) / hull_volume(a)
+        for a in object_catalog().values()
+        if not is_placeholder(stated_mass(a)) and hull_volume(a) > 0.0
+    ]
+    return float(statistics.median(densities))
+
+
+def sim_mass(asset: ObjectAsset) -> float | None:
+    """The mass to give the body in place of its stated one, or None to keep the stated mass."""
+    if not is_placeholder(stated_mass(asset)) or hull_volume(asset) <= 0.0:
+        return None  # a body without volume keeps what it states rather than becoming static
+    return hull_volume(asset) * median_density()
