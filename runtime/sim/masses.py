@@ -1,17 +1,22 @@
 """Masses for the assets whose URDF states none.
 
-The URDF converter behind ``shared/assets`` writes ``<mass value="0.001"/>`` (with a unit-ish
-``1e-3`` inertia) where it had no mass. One asset carries it: ``a_marbles``, a 9 × 8 × 7 cm body
-of 178 cm³ (its collision hulls) weighing 1 g. pybullet takes the gram literally, and the fingers'
-first contacts bat such a body away: alone on the table it was missed in 3 of 3 poses, "fingers
-closed on nothing" (``craft eval pickability --asset a_marbles``), while the same body at 50 g or
-200 g was picked in 3 of 3 (ad hoc, the mass set after loading). A real bag of glass marbles
-weighs far more than either.
+Every YCB URDF in ``shared/assets`` carries the same template inertia (``ixx="1e-3"``, which
+pybullet does not use: it computes the inertia from the collision shape) and a mass of its own,
+from 0.0052 kg (the dice) to 1.435 kg (the peg test). One asset's mass is the round ``0.001``,
+below every other, read here as the converter's "no mass": ``a_marbles``, a 9 × 8 × 7 cm heap of 178 cm³
+(its collision hulls). pybullet takes the gram literally, and the fingers' first contacts bat
+such a body away: alone on the table it was missed in 3 of 3 poses, "fingers closed on nothing"
+(``craft eval pickability --asset a_marbles``), while the same body at 50 g or 200 g was picked
+in 3 of 3 (ad hoc, the mass set after loading). Glass marbles filling that volume would weigh a
+few hundred grams.
 
-The rule, from the catalogue alone: a stated mass at the placeholder is read as unknown, and the
-body gets its collision volume times the catalogue's median density (the stated mass over the
-hull volume of every asset with a stated mass, ~0.74 g/cm³), ~131 g for the marbles. Every other
-stated mass is used as written, light ones included (the 6 g sponge is a real 6 g sponge).
+The rule, from the catalogue alone: a stated mass at the placeholder (or none) is unknown, and
+the body gets its collision volume times the catalogue's median density (stated mass over hull
+volume, over every asset with a stated mass: ~0.74 g/cm³), ~131 g for the marbles. Every other
+stated mass is used as written, light ones included. The 17 OCRTOC assets all state 0.1 kg, a
+uniform value but a plausible one for their sizes (markers, cups, bowls, a stapler), so they
+count; over the YCB assets alone the median is ~0.53 g/cm³ (~94 g): both lie inside the 50-200 g
+that the ad hoc runs picked.
 
 This is the simulator's physics, like the finer collision meshes (``collision_meshes.py``):
 nothing here reaches perception, grounding or the grasp checks.
