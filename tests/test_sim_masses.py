@@ -76,3 +76,20 @@ def test_a_missing_mass_counts_as_unknown(tmp_path: Path) -> None:
     asset = _asset_with_mass(tmp_path, "")
     assert masses.is_placeholder(stated_mass(asset))
     assert sim_mass(asset) == pytest.approx(hull_volume(object_asset("a_marbles")) * median_density())
+
+
+def test_the_marbles_are_picked_at_their_volume_mass_and_missed_at_the_placeholder_gram(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The cause, pinned on layout 0 of ``craft eval pickability --asset a_marbles``: the same
+    scene and pick with the URDF's 1 g closes on nothing, with the volume mass it is picked."""
+    from craft_e.runtime.evaluation.pickability import evaluate_pickability
+    from craft_e.runtime.sim import scene
+
+    def outcome() -> str:
+        report = evaluate_pickability(["a_marbles"], layouts=1)
+        return report.outcome(report.episodes[0])
+
+    assert outcome() == "success"
+    monkeypatch.setattr(scene, "sim_mass", lambda asset: None)  # keep the stated 0.001 kg
+    assert outcome() == "missed"
