@@ -35,7 +35,7 @@ PLACEHOLDER_MASS_KG = 0.001
 
 
 class AssetMassError(ValueError):
-    """An asset URDF whose ``<inertial><mass>`` is missing or not a number."""
+    """An asset URDF whose ``<inertial><mass>`` value is not a number (a missing one is unknown)."""
 
 
 @cache
