@@ -93,3 +93,23 @@ def test_the_marbles_are_picked_at_their_volume_mass_and_missed_at_the_placehold
     assert outcome() == "success"
     monkeypatch.setattr(scene, "sim_mass", lambda asset: None)  # keep the stated 0.001 kg
     assert outcome() == "missed"
+
+
+def test_an_evaluation_stops_on_a_bad_mass_with_the_file_and_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli.main import app
+
+    def bad(asset: ObjectAsset) -> float:
+        raise AssetMassError(f"{asset.urdf_path}: <inertial><mass value='heavy'> is not a number; "
+                             "give the link's mass in kg")
+
+    monkeypatch.setattr(masses, "stated_mass", bad)
+    out = tmp_path / "p.json"
+    result = CliRunner().invoke(app, ["eval", "pickability", "--asset", "banana", "--layouts", "1",
+                                      "--json", str(out)])
+    assert result.exit_code == 2, result.output
+    assert "banana.urdf" in result.output and "in kg" in result.output
+    assert not out.exists()

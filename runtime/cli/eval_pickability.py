@@ -40,6 +40,8 @@ def eval_pickability(
         pickability_method,
     )
     from ..sim.assets import SharedAssetsMissingError
+    from ..sim.collision_meshes import CollisionMeshError
+    from ..sim.masses import AssetMassError
     from ..sim.placement import PlacementError
 
     if grasp == "oracle":
@@ -56,4 +58,5 @@ def eval_pickability(
         lambda bar: evaluate_pickability(chosen, config=config, layouts=layouts, seed=seed,
                                          env_config=env_config, method=method, progress=bar, jobs=jobs),
         "episodes", "episodes", json_out, markdown,
-        (UnknownAssetError, PlacementError, SharedAssetsMissingError, FileNotFoundError))
+        (UnknownAssetError, PlacementError, SharedAssetsMissingError, FileNotFoundError, AssetMassError,
+         CollisionMeshError))

@@ -63,6 +63,8 @@ def eval_sim(
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
     from ..grounding.size_cue import CueUnavailableError
     from ..sim.assets import SharedAssetsMissingError
+    from ..sim.collision_meshes import CollisionMeshError
+    from ..sim.masses import AssetMassError
     from ..sim.placement import PlacementError
     from ..sim.retry import RetryConfig
 
@@ -81,4 +83,5 @@ def eval_sim(
                                  env_config=env_config, retry=RetryConfig(retries=retries),
                                  classifier=classifier),
         "episodes", "episodes", json_out, markdown,
-        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, CueUnavailableError))
+        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, CueUnavailableError,
+         AssetMassError, CollisionMeshError))
