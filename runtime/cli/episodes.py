@@ -210,6 +210,17 @@ def pick_pipeline(
     return env_config, config
 
 
+def scene_errors() -> tuple[type[BaseException], ...]:
+    """What building a scene raises on bad shared data or an impossible layout: an evaluation
+    turns these into exit code 2 with the message (imported here, not at start-up)."""
+    from ..sim.assets import SharedAssetsMissingError
+    from ..sim.collision_meshes import CollisionMeshError
+    from ..sim.masses import AssetMassError
+    from ..sim.placement import PlacementError
+
+    return (PlacementError, SharedAssetsMissingError, FileNotFoundError, AssetMassError, CollisionMeshError)
+
+
 def run_with_progress(
     evaluate: Callable[[ProgressBar], Report], count: str, unit: str, json_out: Path | None,
     markdown: Path | None, errors: tuple[type[BaseException], ...] = (),

@@ -39,10 +39,6 @@ def eval_pickability(
         evaluate_pickability,
         pickability_method,
     )
-    from ..sim.assets import SharedAssetsMissingError
-    from ..sim.collision_meshes import CollisionMeshError
-    from ..sim.masses import AssetMassError
-    from ..sim.placement import PlacementError
 
     if grasp == "oracle":
         fail("--grasp oracle uses the simulator's ground truth: pickability measures the robot's own grasps; "
@@ -58,5 +54,4 @@ def eval_pickability(
         lambda bar: evaluate_pickability(chosen, config=config, layouts=layouts, seed=seed,
                                          env_config=env_config, method=method, progress=bar, jobs=jobs),
         "episodes", "episodes", json_out, markdown,
-        (UnknownAssetError, PlacementError, SharedAssetsMissingError, FileNotFoundError, AssetMassError,
-         CollisionMeshError))
+        (UnknownAssetError, *ep.scene_errors()))

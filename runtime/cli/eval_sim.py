@@ -62,10 +62,6 @@ def eval_sim(
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
     from ..grounding.size_cue import CueUnavailableError
-    from ..sim.assets import SharedAssetsMissingError
-    from ..sim.collision_meshes import CollisionMeshError
-    from ..sim.masses import AssetMassError
-    from ..sim.placement import PlacementError
     from ..sim.retry import RetryConfig
 
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
@@ -83,5 +79,4 @@ def eval_sim(
                                  env_config=env_config, retry=RetryConfig(retries=retries),
                                  classifier=classifier),
         "episodes", "episodes", json_out, markdown,
-        (LabelsError, PlacementError, SharedAssetsMissingError, FileNotFoundError, CueUnavailableError,
-         AssetMassError, CollisionMeshError))
+        (LabelsError, CueUnavailableError, *ep.scene_errors()))

@@ -94,7 +94,7 @@ def hulls_volume(parts: list[FloatArray]) -> float:
     return total
 
 
-def _urdf_link(asset: ObjectAsset) -> tuple[ET.Element, ET.Element]:
+def urdf_link(asset: ObjectAsset) -> tuple[ET.Element, ET.Element]:
     """(root, its one ``<link>``) of the asset's URDF."""
     root = ET.parse(asset.urdf_path).getroot()
     link = root.find("link")
@@ -105,7 +105,7 @@ def _urdf_link(asset: ObjectAsset) -> tuple[ET.Element, ET.Element]:
 
 def shipped_collision_files(asset: ObjectAsset) -> list[Path]:
     """The mesh files of the asset's URDF ``<collision>`` elements."""
-    _, link = _urdf_link(asset)
+    _, link = urdf_link(asset)
     base = asset.urdf_path.parent
     return [base / str(m.get("filename")) for m in link.findall("collision/geometry/mesh")]
 
@@ -123,7 +123,7 @@ def shipped_parts(asset: ObjectAsset) -> list[FloatArray]:
 
 def visual_mesh_file(asset: ObjectAsset) -> Path:
     """The asset's visual mesh (what the camera renders)."""
-    _, link = _urdf_link(asset)
+    _, link = urdf_link(asset)
     mesh = link.find("visual/geometry/mesh")
     if mesh is None:
         raise CollisionMeshError(f"{asset.urdf_path}: no visual mesh")
@@ -294,7 +294,7 @@ def _derived_dir() -> Path:
 def derived_urdf_text(asset: ObjectAsset, mesh: Path) -> str:
     """The asset's URDF with every ``<collision>`` replaced by one on ``mesh`` (same origin and
     scale as the shipped ones) and every file path made absolute."""
-    root, link = _urdf_link(asset)
+    root, link = urdf_link(asset)
     base = asset.urdf_path.parent.resolve()
     shipped = link.findall("collision")
     if not shipped:

@@ -25,11 +25,10 @@ nothing here reaches perception, grounding or the grasp checks.
 from __future__ import annotations
 
 import statistics
-import xml.etree.ElementTree as ET
 from functools import cache
 
 from .assets import ObjectAsset, object_catalog
-from .collision_meshes import hulls_volume, shipped_parts
+from .collision_meshes import hulls_volume, shipped_parts, urdf_link
 
 PLACEHOLDER_MASS_KG = 0.001
 
@@ -41,8 +40,8 @@ class AssetMassError(ValueError):
 @cache
 def stated_mass(asset: ObjectAsset) -> float:
     """The mass (kg) the asset's URDF states for its one link."""
-    root = ET.parse(asset.urdf_path).getroot()
-    mass = root.find("link/inertial/mass")
+    _, link = urdf_link(asset)
+    mass = link.find("inertial/mass")
     value = None if mass is None else mass.get("value")
     try:
         return float(value) if value is not None else float("nan")
