@@ -162,12 +162,16 @@ class TopDownGrasp(NamedTuple):
 
     ``position`` is the surface point under the grasp centre (callers add their own approach and
     insertion offsets); ``yaw`` is the direction of the closing axis in the world xy-plane,
-    from +x towards +y, in ``[-pi/2, pi/2)``; ``width_m`` is the opening.
+    from +x towards +y, in ``[-pi/2, pi/2)``; ``width_m`` is the opening. ``lean`` (rad, 0 for
+    every grasp a network or check makes) tilts the hand about its closing axis, the pads still
+    level: the simulated robot's last resort when every top-down approach is blocked
+    (``sim/relocate.py``).
     """
 
     position: FloatArray
     yaw: float
     width_m: float
+    lean: float = 0.0
 
 
 def sample_depth(depth: DepthImage, center_xy: tuple[float, float], radius_px: int = 2) -> float:

@@ -254,3 +254,44 @@ def arm_hits(points: FloatArray, parts: Sequence[tuple[str, int]], obstacles: He
     pts = np.asarray(points, dtype=np.float64)
     seen = obstacles.heights(pts[:, :2], cfg.arm_spacing)
     return _arm_verdict(seen - pts[:, 2], seen, parts, cfg)
+
+
+@functools.cache
+def _box_points(box: HandBox, step: float) -> FloatArray:
+    """``[n, 3]`` samples of a box's whole volume in the TCP frame (z down the approach axis, as
+    the TCP's own frame has it: a box ``z_lo..z_hi`` above the TCP lies at ``-z_hi..-z_lo``),
+    both sides if mirrored. Read-only, made once per box and step."""
+    xs = np.linspace(-box.half_x, box.half_x, max(2, math.ceil(2 * box.half_x / step) + 1))
+    ys = np.linspace(box.y_lo, box.y_hi, max(2, math.ceil((box.y_hi - box.y_lo) / step) + 1))
+    zs = np.linspace(-box.z_lo, -box.z_hi, max(2, math.ceil((box.z_hi - box.z_lo) / step) + 1))
+    gx, gy, gz = np.meshgrid(xs, ys, zs)
+    pts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+    out = np.concatenate([pts, pts * np.array([1.0, -1.0, 1.0])]) if box.mirrored else pts
+    out.flags.writeable = False
+    return out
+
+
+def leaned_first_hit(
+    tcp_xyz: FloatArray, rotations: FloatArray, arm_points: FloatArray, arm_parts: Sequence[tuple[str, int]],
+    boxes: Sequence[HandBox], obstacles: HeightMap, cfg: ClearanceConfig,
+) -> str | None:
+    """``first_hit`` for a hand that is not pointing straight down (a leaned grasp,
+    ``robot.tool_quat``): each box's whole volume is sampled and turned with the TCP
+    (``rotations`` ``[C, 3, 3]``), and a point touches when a surface seen under it rises above
+    it (less the margin). A top-down box's lowest points are its bottom face, so for a top-down
+    hand this is ``first_hit``'s verdict; it is only used for leaned picks, whose pads are
+    level but whose hand is not."""
+    tcp = np.asarray(tcp_xyz, dtype=np.float64)
+    for i in range(len(tcp)):
+        for box in boxes:
+            world = tcp[i] + _box_points(box, cfg.sample_step) @ np.asarray(rotations[i]).T
+            over = obstacles.heights(world[:, :2]) - world[:, 2]
+            if np.any(over > -cfg.margin):
+                part = "a finger" if box.mirrored else "the hand"
+                return f"{part} (leaned) would touch a surface {100 * float(over.max()):.1f} cm above it"
+        pts = np.asarray(arm_points[i], dtype=np.float64)
+        seen = obstacles.heights(pts[:, :2], cfg.arm_spacing)
+        why = _arm_verdict(seen - pts[:, 2], seen, arm_parts, cfg)
+        if why is not None:
+            return why
+    return None

@@ -24,12 +24,12 @@ import pybullet as p
 
 from ..grasp.geometry import TopDownGrasp
 from .arm_hull import hull_points_world, link_hulls
-from .clearance import ClearanceConfig, HeightMap, first_hit
+from .clearance import ClearanceConfig, HeightMap, first_hit, leaned_first_hit
 from .env import EnvConfig, PhysicsConfig, SimEnv
 from .fingers import FingerGeometry
 from .gripper import GripperConfig
 from .hands import hand_spec
-from .robot import CR3Robot, IKSolution
+from .robot import CR3Robot, IKSolution, tool_rotation
 from .robot_urdf import FINGERTIP_BELOW_TCP
 from .scene import Scene, TableLayout
 from .wrist import WristConfig, look, recentre
@@ -144,6 +144,7 @@ class _Plan:
     transport: list[IKSolution]
     lower: list[IKSolution]
     grasp_z: float
+    lean: float = 0.0
 
 
 def _all_ok(robot: CR3Robot, solutions: list[IKSolution]) -> bool:
@@ -178,7 +179,8 @@ def release_spots(
 class _Approach:
     """The first stage of a pick's plan: the pre-grasp and the straight descent to the grasp,
     all the approach check (``obstructed``) reads. ``x``, ``y``, ``yaw``: the grasp's spot
-    and the closing axis the hand keeps (``CR3Robot.nearest_yaw`` of the arm's posture then)."""
+    and the closing axis the hand keeps (``CR3Robot.nearest_yaw`` of the arm's posture then);
+    ``lean``: the grasp's lean about that axis, kept for the whole pick."""
 
     pre: IKSolution
     descent: list[IKSolution]
@@ -186,6 +188,7 @@ class _Approach:
     x: float
     y: float
     yaw: float
+    lean: float = 0.0
 
 
 def _plan(
@@ -199,26 +202,42 @@ def _plan(
 
 
 def _approach(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -> _Approach | str:
-    """The pre-grasp and the descent of ``grasp``'s pick, or which one is unreachable."""
+    """The pre-grasp and the descent of ``grasp``'s pick, or which one is unreachable.
+
+    A leaned grasp (``grasp.lean``) comes in along its own approach axis, and its TCP stays high
+    enough that the lower corners of the leaned finger tips keep the table clearance."""
     table_z = scene.layout.table_z
     x, y = float(grasp.position[0]), float(grasp.position[1])
-    grasp_z = max(
-        float(grasp.position[2]) - cfg.insertion_depth,
-        table_z + FINGERTIP_BELOW_TCP + cfg.table_clearance,
-    )
+    lean = float(grasp.lean)
+    lowest = table_z + FINGERTIP_BELOW_TCP + cfg.table_clearance
+    if lean != 0.0:  # the tips' centre rises, their outer corner comes down
+        lowest = (table_z + cfg.table_clearance + FINGERTIP_BELOW_TCP * math.cos(lean)
+                  + robot.gripper.hand.fingers.finger_half_width * abs(math.sin(lean)))
+    grasp_z = max(float(grasp.position[2]) - cfg.insertion_depth, lowest)
     yaw = robot.nearest_yaw(grasp.yaw, robot.tcp_pose().yaw)
+    if lean != 0.0 and _wrapped_by_pi(yaw - grasp.yaw):
+        lean = -lean  # the same hand, its closing axis named the other way round
+    up = np.array([0.0, 0.0, 1.0]) if lean == 0.0 else -tool_rotation(yaw, lean)[:, 2]
     heights = (cfg.approach_height, *cfg.short_approach_heights)
     for height in heights:
-        pre = robot.solve_ik((x, y, grasp_z + height), yaw)
+        if lean == 0.0:
+            pre = robot.solve_ik((x, y, grasp_z + height), yaw)
+        else:
+            pre = robot.solve_ik(tuple(float(v) for v in np.array([x, y, grasp_z]) + height * up), yaw, lean=lean)
         if pre.ok(robot.config):
             break
     else:
         lower = "".join(f", nor {h * 100:.0f} cm above the grasp" for h in heights[1:])
         return f"pre-grasp ({x:.3f}, {y:.3f}, {grasp_z + cfg.approach_height:.3f}) unreachable{lower}"
-    descent = robot.plan_linear(pre.q, (x, y, grasp_z), yaw)
+    descent = robot.plan_linear(pre.q, (x, y, grasp_z), yaw, lean)
     if not _all_ok(robot, descent):
         return f"grasp pose ({x:.3f}, {y:.3f}, {grasp_z:.3f}) unreachable"
-    return _Approach(pre, descent, grasp_z, x, y, yaw)
+    return _Approach(pre, descent, grasp_z, x, y, yaw, lean)
+
+
+def _wrapped_by_pi(angle: float) -> bool:
+    """Whether ``angle`` is nearer a half turn than a whole one (``nearest_yaw`` flipped it)."""
+    return abs(math.remainder(angle, 2 * math.pi)) > math.pi / 2
 
 
 def _complete(
@@ -234,13 +253,14 @@ def _complete(
     (``release_spots``), else the TCP over the zone as without it: feasibility is unchanged.
     """
     x, y, yaw, grasp_z, descent = approach.x, approach.y, approach.yaw, approach.grasp_z, approach.descent
+    lean = approach.lean
     lift: list[IKSolution] = []
     found = False
     for height in ([rise] if rise > cfg.lift_height else []) + [cfg.lift_height]:
         for i in range(cfg.lift_inward_steps + 1):
             radius = math.hypot(x, y)
             shrink = max(0.0, 1.0 - i * cfg.lift_inward_step / radius) if radius > 0 else 1.0
-            lift = robot.plan_linear(descent[-1].q, (x * shrink, y * shrink, grasp_z + height), yaw)
+            lift = robot.plan_linear(descent[-1].q, (x * shrink, y * shrink, grasp_z + height), yaw, lean)
             if _all_ok(robot, lift):
                 found = True
                 break
@@ -250,19 +270,20 @@ def _complete(
         return f"no reachable lift of {cfg.lift_height} m above ({x:.3f}, {y:.3f})"
     lift_end = robot.forward(lift[-1].q).position
     drop_yaw = robot.nearest_yaw(0.0, yaw)
+    drop_lean = lean if not _wrapped_by_pi(drop_yaw - yaw) else -lean
     release_z = grasp_z + cfg.release_clearance
     why = ""
     for drop_x, drop_y in release_spots(scene.layout.drop_zone.center, (x, y), yaw, drop_yaw, object_xy):
-        placed = _place(robot, lift, float(lift_end[2]), (drop_x, drop_y), drop_yaw, release_z, cfg)
+        placed = _place(robot, lift, float(lift_end[2]), (drop_x, drop_y), drop_yaw, release_z, cfg, drop_lean)
         if not isinstance(placed, str):
-            return _Plan(approach.pre, descent, lift, placed[0], placed[1], grasp_z)
+            return _Plan(approach.pre, descent, lift, placed[0], placed[1], grasp_z, drop_lean)
         why = placed
     return why
 
 
 def _place(
     robot: CR3Robot, lift: list[IKSolution], lift_z: float, drop_xy: tuple[float, float], drop_yaw: float,
-    release_z: float, cfg: PickConfig,
+    release_z: float, cfg: PickConfig, lean: float = 0.0,
 ) -> tuple[list[IKSolution], list[IKSolution]] | str:
     """Transport from the lift's end to above ``drop_xy`` and the lowering to ``release_z``, or
     what is unreachable. Carried at the lift height if the spot is reachable there, else lower:
@@ -271,12 +292,12 @@ def _place(
     heights = np.arange(lift_z, release_z + cfg.min_transport_gap, -0.02)
     transport: list[IKSolution] = []
     for height in heights:
-        transport = robot.plan_linear(lift[-1].q, (drop_x, drop_y, float(height)), drop_yaw)
+        transport = robot.plan_linear(lift[-1].q, (drop_x, drop_y, float(height)), drop_yaw, lean)
         if _all_ok(robot, transport):
             break
     else:
         return f"drop zone ({drop_x:.3f}, {drop_y:.3f}) unreachable below z={lift_z:.3f}"
-    lower = robot.plan_linear(transport[-1].q, (drop_x, drop_y, release_z), drop_yaw)
+    lower = robot.plan_linear(transport[-1].q, (drop_x, drop_y, release_z), drop_yaw, lean)
     if not _all_ok(robot, lower):
         return f"release pose ({drop_x:.3f}, {drop_y:.3f}, {release_z:.3f}) unreachable"
     return transport, lower
@@ -299,7 +320,7 @@ def plan_pick(
 
 #: plans already made, by grasp and arm posture (``pick_problems``' ``plans``): the whole plan,
 #: why it is unreachable, or only its approach when the rest was not needed yet
-PlanCache = dict[tuple[bytes, float, float, bytes, int], "_Plan | _Approach | str"]
+PlanCache = dict[tuple[bytes, float, float, bytes, int, float], "_Plan | _Approach | str"]
 
 
 def pick_problems(
@@ -321,7 +342,7 @@ def pick_problems(
     answer is then None even if they are unreachable. Both answers are None exactly when they
     are without it."""
     key = (np.asarray(grasp.position, np.float64).tobytes(), float(grasp.yaw), float(grasp.width_m),
-           env.robot.joint_positions().tobytes(), id(config))
+           env.robot.joint_positions().tobytes(), id(config), float(grasp.lean))
     made = plans.get(key) if plans is not None else None
     if made is None:
         made = _approach(env.robot, env.scene, grasp, config)
@@ -362,6 +383,9 @@ def obstructed(
         walked = [robot.forward_and_frames(q) for q in qs]  # one chain walk per pose
         arm = np.array([np.concatenate(hull_points_world(hulls, frames, robot.base_position))
                         for _, frames in walked])
+        if plan.lean != 0.0:  # the hand leans: its boxes in 3D, turned with the TCP
+            return leaned_first_hit(np.array([t.position for t, _ in walked]),
+                                    np.array([t.rotation for t, _ in walked]), arm, parts, boxes, obstacles, cfg)
         # the poses in order, hand before arm: hand_hits / arm_hits pose by pose, in one lookup each
         return first_hit(np.array([t.position for t, _ in walked]), [t.yaw for t, _ in walked], arm,
                          parts, boxes, obstacles, cfg)
@@ -505,7 +529,7 @@ def execute_pick(
         return progress.finish(Outcome.SLIP_DURING_TRANSPORT, None, "target lost during transport")
     robot.gripper.open()
     retreat = robot.forward(plan.lower[-1].q).position + np.array([0.0, 0.0, cfg.retreat_height])
-    robot.move_linear(retreat, robot.tcp_pose().yaw)
+    robot.move_linear(retreat, robot.tcp_pose().yaw, plan.lean)
     env.step(cfg.release_settle_steps)
 
     in_zone = _in_drop_zone(scene, target_body)
@@ -550,7 +574,7 @@ def _look_and_replan(
     Keeps the original plan when the look finds nothing to correct or the corrected pick is not
     reachable (the arm is already at a reachable pre-grasp).
     """
-    if not cfg.wrist.enabled:
+    if not cfg.wrist.enabled or grasp.lean != 0.0:  # the wrist camera's look is top-down only
         return plan
     robot, scene = env.robot, env.scene
     tcp = robot.tcp_pose()

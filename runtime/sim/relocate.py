@@ -12,7 +12,10 @@ This does that, from the overhead depth frame only: the grasp is turned about it
 (15°, 30°), then slid along the object, across its closing axis, by 2, 4 and 6 cm each way
 (each slide also turned), nearest first; then the region's next network grasps are tried the
 same way, best first; last, the grasp is nudged 1 and 2 cm along its closing axis each way
-(each nudge also turned), the hand off the object's centre. A candidate must stand on the object (its centre has
+(each nudge also turned), the hand off the object's centre; last of all, the grasp itself and
+every spot that fitted the fingers are tried again with the hand leaned 20° about its closing
+axis, each way (``RelocateConfig.leans_deg``; the pads stay level, the wrist swings sideways:
+beside a tall object a top-down grasp puts the CR3's wrist links on it, whatever the spot). A candidate must stand on the object (its centre has
 object points within ``footing_radius``; its height is their highest), the fingers must fit
 (``finger_check``) and the whole pick must be reachable with a clear approach
 (``episode.pick_problems`` against the same height map). The first that passes replaces the
@@ -56,6 +59,11 @@ class RelocateConfig:
     # fingers a sliver to close on (sim-val's spin/racquetball/0 closed on nothing after a 4 cm
     # slide on a 5 cm ball).
     interior: bool = True
+    # Degrees the hand leans about its closing axis, each sign, tried after every top-down spot
+    # (the grasp first, then each spot that fitted the fingers, in the same order). Sim-dev's
+    # ``cut/knife/1`` and ``tighten/adjustable_wrench/1`` had no clear top-down spot: the wrist
+    # links come down on a 21 cm block beside them in every posture IK finds. Empty: never.
+    leans_deg: tuple[float, ...] = (20.0,)
 
     def __post_init__(self) -> None:
         if any(not 0 < t < 90 for t in self.turns_deg):
@@ -63,6 +71,8 @@ class RelocateConfig:
         if any(s <= 0 for s in (*self.shifts, *self.nudges)):
             raise ValueError(f"relocation shifts {self.shifts} and nudges {self.nudges} must be positive "
                              "(both signs are tried)")
+        if any(not 0 < a < 45 for a in self.leans_deg):
+            raise ValueError(f"relocation leans {self.leans_deg} must lie strictly between 0 and 45 degrees")
         if self.footing_radius <= 0 or self.min_footing_points < 1:
             raise ValueError("footing_radius must be > 0 and min_footing_points >= 1")
 
@@ -163,14 +173,28 @@ def relocate_if_blocked(
             yield from ((r, f"the region's network grasp #{k}") for r in relocations(other, material, cfg))
         yield from ((r, "") for r in nudged(pose, material, cfg))
 
+    def clear(spot: TopDownGrasp) -> bool:
+        unreachable, blocked = (spot_problems or problems)(spot, heights)
+        return unreachable is None and blocked is None
+
+    def moved(spot: TopDownGrasp, source: str) -> Relocation:
+        shift = float(np.linalg.norm(np.asarray(spot.position[:2]) - np.asarray(pose.position[:2])))
+        turn = math.degrees(wrap_half_pi(spot.yaw - pose.yaw))
+        where = f"took {source}: " if source else ""
+        leaned = f", the hand leaned {math.degrees(spot.lean):+.0f}°" if spot.lean else ""
+        return Relocation(spot, True, f"{touched}; {where}the grasp moved {100 * shift:.1f} cm on the "
+                                      f"object and turned {turn:+.0f}°{leaned}, a clear approach")
+
+    fitted: list[tuple[TopDownGrasp, str]] = [(pose, "")]  # the spots a lean may try, in order
     for spot, source in spots():
         if not finger_check(surface, spot, tip_z_of(spot), fingers)[0]:
             continue
-        unreachable, blocked = (spot_problems or problems)(spot, heights)
-        if unreachable is None and blocked is None:
-            shift = float(np.linalg.norm(np.asarray(spot.position[:2]) - np.asarray(pose.position[:2])))
-            turn = math.degrees(wrap_half_pi(spot.yaw - pose.yaw))
-            where = f"took {source}: " if source else ""
-            return Relocation(spot, True, f"{touched}; {where}the grasp moved {100 * shift:.1f} cm on the "
-                                          f"object and turned {turn:+.0f}°, a clear approach")
+        if clear(spot):
+            return moved(spot, source)
+        fitted.append((spot, source))
+    leans = [s * math.radians(a) for a in cfg.leans_deg for s in (1.0, -1.0)]
+    for spot, source in fitted:
+        for lean in leans:
+            if clear(spot._replace(lean=lean)):
+                return moved(spot._replace(lean=lean), source)
     return Relocation(pose, False, f"{touched}; no nearby spot was clear, kept")

@@ -90,7 +90,10 @@ def return_home(env: SimEnv, cfg: RetryConfig) -> None:
     robot.hold()
     robot.gripper.open()
     tcp = robot.tcp_pose()
-    robot.move_linear(tuple(float(v) for v in tcp.position + np.array([0.0, 0.0, cfg.rise])), tcp.yaw)
+    # a leaned pick (relocation's last resort) rises leaned; a top-down one's measured lean is
+    # only IK's tolerance (under 2 degrees), and it rises top-down, as before leans existed
+    lean = tcp.lean if abs(tcp.lean) > math.radians(5.0) else 0.0
+    robot.move_linear(tuple(float(v) for v in tcp.position + np.array([0.0, 0.0, cfg.rise])), tcp.yaw, lean)
     robot.follow([HOME_Q])
     env.step(cfg.settle_steps)
     robot.reset_home()  # the settled arm is at home to ~1e-4 rad; make the frame's start exact

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 import pybullet as p
+from scipy.spatial.transform import Rotation
 
 from .gripper import GripperConfig, ParallelGripper
 from .kinematics import Mat4, SerialChain, load_chain
@@ -78,6 +79,33 @@ def _top_down_rotation(yaw: float) -> FloatArray:
 def top_down_quat(yaw: float) -> tuple[float, float, float, float]:
     """``top_down_rotation`` as an (x, y, z, w) quaternion."""
     return rpy_to_quat(math.pi, 0.0, yaw + math.pi / 2)
+
+
+def tool_quat(yaw: float, lean: float = 0.0) -> tuple[float, float, float, float]:
+    """The TCP orientation of a grasp with closing axis ``yaw``, leaned by ``lean`` (rad) about
+    that axis, as an (x, y, z, w) quaternion: ``top_down_quat(yaw)`` exactly when ``lean`` is 0.
+
+    Why a lean: a top-down grasp fixes the wrist's height above the object, and beside a tall
+    object the CR3's wrist links then come down on it (sim-dev's ``cut/knife/1``: no top-down
+    spot of the knife is clear). Leaning the hand about its closing axis keeps the pads level and
+    closing along the same line, and swings the wrist sideways (``relocate.py``).
+    """
+    if lean == 0.0:
+        return top_down_quat(yaw)
+    return _leaned_quat(float(yaw), float(lean))
+
+
+@functools.lru_cache(maxsize=64)
+def _leaned_quat(yaw: float, lean: float) -> tuple[float, float, float, float]:
+    c, s = math.cos(lean), math.sin(lean)
+    about_closing = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # Ry(lean): the hand's y closes
+    x, y, z, w = Rotation.from_matrix(top_down_rotation(yaw) @ about_closing).as_quat()
+    return float(x), float(y), float(z), float(w)
+
+
+def tool_rotation(yaw: float, lean: float = 0.0) -> FloatArray:
+    """``tool_quat`` as a read-only matrix: ``top_down_rotation(yaw)`` when ``lean`` is 0."""
+    return top_down_rotation(yaw) if lean == 0.0 else quat_to_matrix(_leaned_quat(float(yaw), float(lean)))
 
 
 def closing_yaw(rotation: FloatArray) -> float:
@@ -147,6 +175,12 @@ class TcpPose:
     @property
     def yaw(self) -> float:
         return closing_yaw(self.rotation)
+
+    @property
+    def lean(self) -> float:
+        """The hand's lean about its closing axis (rad; ``tool_quat``): ~0 for a top-down TCP."""
+        relative = top_down_rotation(self.yaw).T @ self.rotation
+        return math.atan2(float(relative[0, 2]), float(relative[0, 0]))
 
 
 class CR3Robot:
@@ -252,8 +286,9 @@ class CR3Robot:
                 best = candidate
         return best
 
-    def solve_ik(self, position: Point3, yaw: float, seed: FloatArray | None = None) -> IKSolution:
-        """Top-down IK for the TCP at ``position`` with closing axis ``yaw``.
+    def solve_ik(self, position: Point3, yaw: float, seed: FloatArray | None = None, lean: float = 0.0) -> IKSolution:
+        """Top-down IK for the TCP at ``position`` with closing axis ``yaw`` (leaned by ``lean``
+        about that axis, ``tool_quat``).
 
         An explicit ``seed`` close to the target (a waypoint of a straight-line move) is solved by
         Newton steps on the chain model (``local_ik``, a plan ~3x cheaper; ``ArmConfig.ik_local``);
@@ -266,12 +301,12 @@ class CR3Robot:
         ``ArmConfig.ik_null_space`` switches it on.
         """
         target = np.asarray(position, dtype=np.float64)
-        rotation = top_down_rotation(yaw)
+        rotation = tool_rotation(yaw, lean)
         if seed is not None and self.config.ik_local:
             local = self._solve_local(target, rotation, np.asarray(seed, dtype=np.float64))
             if local is not None:
                 return local
-        quat = top_down_quat(yaw)
+        quat = tool_quat(yaw, lean)
         q = self.joint_positions() if seed is None else np.asarray(seed, dtype=np.float64)
         current = [0.0] * len(self.movable_joints)
         arm_slots = self._arm_slots
@@ -356,7 +391,7 @@ class CR3Robot:
         within = all(lower <= v <= upper for v, (lower, upper) in zip(wrapped, self._limit_pairs, strict=True))
         return np.array(wrapped, dtype=np.float64), within
 
-    def plan_linear(self, start_q: FloatArray, target: Point3, yaw: float) -> list[IKSolution]:
+    def plan_linear(self, start_q: FloatArray, target: Point3, yaw: float, lean: float = 0.0) -> list[IKSolution]:
         """IK waypoints every ``cartesian_step`` along the straight TCP line to ``target``.
 
         Each waypoint is seeded with the previous one, so the arm keeps one posture along the
@@ -374,10 +409,10 @@ class CR3Robot:
         point = start
         for i in range(1, n + 1):
             last, point = point, start + (goal - start) * i / n
-            solution = self.solve_ik(point, yaw, seed=seed)
+            solution = self.solve_ik(point, yaw, seed=seed, lean=lean)
             split = False
             if intact and not solution.ok(self.config):
-                finer = self._split_step(solutions[-1].q if solutions else start_q, last, point, yaw)
+                finer = self._split_step(solutions[-1].q if solutions else start_q, last, point, yaw, lean)
                 if finer is not None:
                     solutions.extend(finer[:-1])
                     solution, split = finer[-1], True
@@ -394,7 +429,8 @@ class CR3Robot:
                     seed = solution.q + step
         return solutions
 
-    def _split_step(self, seed: FloatArray, frm: FloatArray, to: FloatArray, yaw: float) -> list[IKSolution] | None:
+    def _split_step(self, seed: FloatArray, frm: FloatArray, to: FloatArray, yaw: float,
+                    lean: float = 0.0) -> list[IKSolution] | None:
         """The waypoints of ``ik_split_failed`` equal sub-steps from ``frm`` (where the arm is at
         ``seed``) to ``to``, each seeded with the last, or None if one of them is missed too."""
         k = self.config.ik_split_failed
@@ -402,7 +438,7 @@ class CR3Robot:
             return None
         out: list[IKSolution] = []
         for j in range(1, k + 1):
-            solution = self.solve_ik(frm + (to - frm) * j / k, yaw, seed=seed)
+            solution = self.solve_ik(frm + (to - frm) * j / k, yaw, seed=seed, lean=lean)
             if not solution.ok(self.config):
                 return None
             out.append(solution)
@@ -478,9 +514,9 @@ class CR3Robot:
             self.follow([solution.q])
         return solution
 
-    def move_linear(self, position: Point3, yaw: float) -> list[IKSolution]:
+    def move_linear(self, position: Point3, yaw: float, lean: float = 0.0) -> list[IKSolution]:
         """Straight-line TCP move; does not move unless every waypoint is reachable."""
-        plan = self.plan_linear(self.joint_positions(), position, yaw)
+        plan = self.plan_linear(self.joint_positions(), position, yaw, lean)
         if all(s.ok(self.config) for s in plan):
             self.follow([s.q for s in plan])
         return plan
