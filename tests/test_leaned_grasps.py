@@ -137,6 +137,7 @@ def test_beside_the_tall_block_the_knife_is_picked_with_the_hand_leaned() -> Non
         load_sim_labels,
         make_episode_specs,
     )
+    from craft_e.runtime.sim.choose import perceive_for_pick, relocate_choice
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.episode import Outcome, execute_pick
     from craft_e.runtime.sim.pipeline import PipelineConfig, perceive, relocated_grasp
@@ -147,13 +148,20 @@ def test_beside_the_tall_block_the_knife_is_picked_with_the_hand_leaned() -> Non
         env.reset(spec.scene)
         env.robot.reset_home()
         obs = env.capture()
-        eager = perceive(env, default_encoder(1), config, obs)
+        encoder = default_encoder(1)
+        eager = perceive(env, encoder, config, obs)
         knife = eager.target_roi
         assert knife is not None and eager.rois[knife].usable
         chosen = eager.rois[knife].usable[0]
         moved, why = relocated_grasp(env, obs, eager.rois[knife], chosen, config)
         assert why.startswith("approach blocked: the arm (Link3)") and "leaned" in why, why
         assert moved.pose is not None and moved.pose.lean != 0.0
+        # the robot's lazy path leans the same grasp the same way
+        lazy = perceive_for_pick(env, encoder, config, obs)[knife]
+        lazy_moved, lazy_why = relocate_choice(env, config, obs, lazy, lazy.as_roi("knife").grasps[0])
+        assert lazy_why == why and lazy_moved.pose is not None
+        assert lazy_moved.pose.lean == moved.pose.lean
+        np.testing.assert_allclose(lazy_moved.pose.position, moved.pose.position, atol=1e-6)
         env.robot.reset_home()
         picked = execute_pick(env, moved.pose, env.scene.target.body_id, config.pick)
         assert picked.outcome is Outcome.SUCCESS, picked.detail
