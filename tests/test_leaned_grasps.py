@@ -55,6 +55,14 @@ def test_a_lean_keeps_the_closing_axis_level_and_tilts_the_approach_by_its_angle
     assert TcpPose(np.zeros(3), top_down_rotation(yaw)).lean == pytest.approx(0.0, abs=1e-12)
 
 
+def test_after_a_miss_a_leaned_hand_rises_leaned_and_a_top_down_one_exactly_top_down() -> None:
+    from craft_e.runtime.sim.retry import rising_lean
+
+    assert rising_lean(TcpPose(np.zeros(3), tool_rotation(0.4, -LEAN))) == pytest.approx(-LEAN)
+    assert rising_lean(TcpPose(np.zeros(3), tool_rotation(0.4, math.radians(1.5)))) == 0.0  # IK's tolerance
+    assert rising_lean(TcpPose(np.zeros(3), top_down_rotation(0.4))) == 0.0
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_for_a_top_down_hand_the_leaned_check_answers_as_first_hit(seed: int) -> None:
     """Sampling each box's whole volume finds a contact exactly when its bottom face does, for a

@@ -34,7 +34,7 @@ import numpy as np
 from ..grasp.geometry import TopDownGrasp
 from .env import SimEnv
 from .episode import Outcome, PickResult
-from .robot import HOME_Q
+from .robot import HOME_Q, TcpPose
 
 #: Pick outcomes after which the robot's hand is empty and it knows so.
 EMPTY_HAND = frozenset({Outcome.MISSED, Outcome.LIFT_FAILED, Outcome.SLIP_DURING_TRANSPORT})
@@ -83,6 +83,14 @@ def same_grasp(a: TopDownGrasp, b: TopDownGrasp, cfg: RetryConfig) -> bool:
     return gap <= cfg.same_grasp_distance and math.degrees(turn) <= cfg.same_grasp_angle_deg
 
 
+def rising_lean(tcp: TcpPose) -> float:
+    """The lean a hand keeps as it rises after a miss: a leaned pick's (relocation's last resort,
+    20°) rises leaned, not turning its wrist on the way up; a top-down pick's measured lean is
+    only IK's tolerance (under 2°), and it rises exactly top-down (0.0), as before leans existed."""
+    lean = tcp.lean
+    return lean if abs(lean) > math.radians(5.0) else 0.0
+
+
 def return_home(env: SimEnv, cfg: RetryConfig) -> None:
     """Open the hand, rise straight up (when reachable), drive to home, settle: physical moves,
     so whatever the hand touches on the way is pushed as it would be."""
@@ -90,10 +98,8 @@ def return_home(env: SimEnv, cfg: RetryConfig) -> None:
     robot.hold()
     robot.gripper.open()
     tcp = robot.tcp_pose()
-    # a leaned pick (relocation's last resort) rises leaned; a top-down one's measured lean is
-    # only IK's tolerance (under 2 degrees), and it rises top-down, as before leans existed
-    lean = tcp.lean if abs(tcp.lean) > math.radians(5.0) else 0.0
-    robot.move_linear(tuple(float(v) for v in tcp.position + np.array([0.0, 0.0, cfg.rise])), tcp.yaw, lean)
+    robot.move_linear(tuple(float(v) for v in tcp.position + np.array([0.0, 0.0, cfg.rise])), tcp.yaw,
+                      rising_lean(tcp))
     robot.follow([HOME_Q])
     env.step(cfg.settle_steps)
     robot.reset_home()  # the settled arm is at home to ~1e-4 rad; make the frame's start exact
