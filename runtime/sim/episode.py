@@ -144,6 +144,8 @@ class _Plan:
     transport: list[IKSolution]
     lower: list[IKSolution]
     grasp_z: float
+    # the hand's lean at the release (a leaned grasp's, ``tool_quat``, named for the drop yaw's
+    # closing axis): the retreat after the release keeps it
     lean: float = 0.0
 
 
