@@ -179,9 +179,13 @@ def hand_hits(
     return None
 
 
+def _part(box: HandBox) -> str:
+    """What a box of the hand is called in a verdict: a finger (the mirrored boxes) or the hand."""
+    return "a finger" if box.mirrored else "the hand"
+
+
 def _hand_message(box: HandBox, highest: float, bottom: float) -> str:
-    part = "a finger" if box.mirrored else "the hand"
-    return f"{part} would touch a surface {100 * (highest - bottom):.1f} cm above its bottom"
+    return f"{_part(box)} would touch a surface {100 * (highest - bottom):.1f} cm above its bottom"
 
 
 def _arm_message(link: str, height: float) -> str:
@@ -260,13 +264,11 @@ def arm_hits(points: FloatArray, parts: Sequence[tuple[str, int]], obstacles: He
 def _box_points(box: HandBox, step: float) -> FloatArray:
     """``[n, 3]`` samples of a box's whole volume in the TCP frame (z down the approach axis, as
     the TCP's own frame has it: a box ``z_lo..z_hi`` above the TCP lies at ``-z_hi..-z_lo``),
-    both sides if mirrored. Read-only, made once per box and step."""
-    xs = np.linspace(-box.half_x, box.half_x, max(2, math.ceil(2 * box.half_x / step) + 1))
-    ys = np.linspace(box.y_lo, box.y_hi, max(2, math.ceil((box.y_hi - box.y_lo) / step) + 1))
+    both sides if mirrored: the footprint ``_box_bottom_points`` samples, at each height. Read-only,
+    made once per box and step."""
+    footprint = _box_bottom_points(box, step)  # [n, 2]
     zs = np.linspace(-box.z_lo, -box.z_hi, max(2, math.ceil((box.z_hi - box.z_lo) / step) + 1))
-    gx, gy, gz = np.meshgrid(xs, ys, zs)
-    pts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
-    out = np.concatenate([pts, pts * np.array([1.0, -1.0, 1.0])]) if box.mirrored else pts
+    out = np.concatenate([np.column_stack([footprint, np.full(len(footprint), z)]) for z in zs])
     out.flags.writeable = False
     return out
 
@@ -287,8 +289,7 @@ def leaned_first_hit(
             world = tcp[i] + _box_points(box, cfg.sample_step) @ np.asarray(rotations[i]).T
             over = obstacles.heights(world[:, :2]) - world[:, 2]
             if np.any(over > -cfg.margin):
-                part = "a finger" if box.mirrored else "the hand"
-                return f"{part} (leaned) would touch a surface {100 * float(over.max()):.1f} cm above it"
+                return f"{_part(box)} (leaned) would touch a surface {100 * float(over.max()):.1f} cm above it"
         pts = np.asarray(arm_points[i], dtype=np.float64)
         seen = obstacles.heights(pts[:, :2], cfg.arm_spacing)
         why = _arm_verdict(seen - pts[:, 2], seen, arm_parts, cfg)

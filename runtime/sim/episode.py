@@ -219,10 +219,10 @@ def _approach(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfi
     yaw = robot.nearest_yaw(grasp.yaw, robot.tcp_pose().yaw)
     if lean != 0.0 and _wrapped_by_pi(yaw - grasp.yaw):
         lean = -lean  # the same hand, its closing axis named the other way round
-    up = np.array([0.0, 0.0, 1.0]) if lean == 0.0 else -tool_rotation(yaw, lean)[:, 2]
+    up = None if lean == 0.0 else -tool_rotation(yaw, lean)[:, 2]  # a leaned hand's approach axis, upwards
     heights = (cfg.approach_height, *cfg.short_approach_heights)
     for height in heights:
-        if lean == 0.0:
+        if up is None:
             pre = robot.solve_ik((x, y, grasp_z + height), yaw)
         else:
             pre = robot.solve_ik(tuple(float(v) for v in np.array([x, y, grasp_z]) + height * up), yaw, lean=lean)
