@@ -270,11 +270,34 @@ def test_sim_demo_replays_an_evaluation_episode_by_its_id(tmp_path: Path) -> Non
     assert "touching the wood block" in result.output  # where the descent ended: the arm met the block
 
 
+@pytest.mark.parametrize("episode", ["wipe/sponge/2", "contain/pitcher_base/0"])
+def test_sim_demo_episode_with_a_seed_is_that_runs_scene(episode: str) -> None:
+    """``--episode ID --seed 1`` names the scene ``craft eval sim --seed 1`` ran under that id:
+    the committed new-layouts table's target, distractors and layout seed."""
+    import json
+
+    from craft_e.paths import SIM_DEV_LABELS
+    from craft_e.runtime.cli.sim import _evaluation_episode
+    from craft_e.runtime.evaluation.sim_eval import load_sim_labels
+    from craft_e.runtime.sim.env import EnvConfig
+
+    published = next(e for e in json.loads((ROOT / "docs/results/sim_dev_seed1.json").read_text(encoding="utf-8"))[
+        "episodes"] if e["id"] == episode)
+    labels = load_sim_labels(SIM_DEV_LABELS)
+    verb = episode.split("/")[0]
+    pairs = [p for p in labels.pairs if p.verb == verb]
+    spec = _evaluation_episode(episode, verb, pairs, labels, EnvConfig(), seed=1)
+    assert (spec.id, spec.scene.target, list(spec.scene.distractors), spec.scene.seed) == (
+        episode, published["target"], published["distractors"], published["scene_seed"])
+    at_seed_0 = _evaluation_episode(episode, verb, pairs, labels, EnvConfig())
+    assert at_seed_0.scene.seed != spec.scene.seed
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--verb", "cut", "--episode", "cut/knife"], "use verb/object/layout"),
     (["--verb", "pour", "--episode", "cut/knife/1"], "pass --verb 'cut'"),
     (["--verb", "cut", "--episode", "cut/teapot/0"], "'teapot' is not among 'cut'"),
-    (["--verb", "cut", "--episode", "cut/knife/1", "--seed", "2"], "drop --target and --seed"),
+    (["--verb", "cut", "--episode", "cut/knife/1", "--target", "knife"], "drop --target"),
 ])
 def test_sim_demo_names_what_is_wrong_with_an_episode_id(args: list[str], message: str) -> None:
     from typer.testing import CliRunner

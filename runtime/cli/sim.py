@@ -19,7 +19,8 @@ if TYPE_CHECKING:
 
 def demo(
     verb: Annotated[str, typer.Option(help="The request, e.g. cut.")],
-    seed: Annotated[int, typer.Option(min=0, help="Layout seed (also picks the target among the verb's pairs).")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Layout seed (also picks the target among the verb's pairs); "
+                                           "with --episode, the --seed that `craft eval sim` ran with.")] = 0,
     kb: Annotated[Path | None, typer.Option(help="Bundle (default artifacts/kb/craft-e-default).")] = None,
     out: Annotated[Path, typer.Option(help="Folder for the PNG, GIF and episode JSON.",
                                       callback=checked_output_folder)] = Path("out/sim_demo"),
@@ -27,8 +28,9 @@ def demo(
                                                      "(default: artifacts/labels/sim_dev_labels.csv).")] = None,
     target: Annotated[str | None, typer.Option(help="Target asset id or plain name among the verb's pairs.")] = None,
     episode: Annotated[str | None, typer.Option(
-        help="Replay one episode of `craft eval sim` (its default seed 0) by its id, verb/object/layout as "
-             "in the results JSON, e.g. cut/knife/1: the same scene, here with a figure and a GIF.")] = None,
+        help="Replay one episode of `craft eval sim` by its id, verb/object/layout as in the results JSON, "
+             "e.g. cut/knife/1: the same scene, here with a figure and a GIF (add --seed N for a run "
+             "with --seed N).")] = None,
     grasp: Annotated[str, typer.Option(help="grconvnet | ggcnn | ggcnn2 | antipodal | oracle.")] = "grconvnet",
     rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
     gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
@@ -86,10 +88,10 @@ def demo(
     if not pairs:
         fail(f"verb {name!r} has no pairs in {all_labels.path}; it has: {', '.join(all_labels.verbs)}")
     if episode is not None:
-        if target is not None or seed != 0:
-            fail(f"--episode {episode} names a fixed scene: drop --target and --seed")
-        spec = _evaluation_episode(episode, name, pairs, all_labels, env_config)
-        stem = episode.replace("/", "_").replace(" ", "_")
+        if target is not None:
+            fail(f"--episode {episode} names a fixed scene: drop --target")
+        spec = _evaluation_episode(episode, name, pairs, all_labels, env_config, seed)
+        stem = episode.replace("/", "_").replace(" ", "_") + (f"_seed{seed}" if seed else "")
     else:
         if target is not None:
             pairs = [p for p in pairs if target in (p.object, *p.assets)]
@@ -143,10 +145,11 @@ def demo(
 
 def _evaluation_episode(
     episode: str, verb: str, pairs: Sequence[LabelPair], labels: SimLabels, env_config: EnvConfig,
+    seed: int = 0,
 ) -> EpisodeSpec:
-    """The scene ``craft eval sim`` (seed 0, the same labels) runs as ``episode``
-    (``verb/object/layout``): a pair's layouts are drawn from the pair alone, so building that one
-    pair's layouts reproduces it without the rest of the file."""
+    """The scene ``craft eval sim --seed <seed>`` (the same labels) runs as ``episode``
+    (``verb/object/layout``): a pair's layouts are drawn from the pair and the seed alone, so
+    building that one pair's layouts reproduces it without the rest of the file."""
     from ..evaluation.sim_eval import SimLabels, make_episode_specs
     from .common import fail
 
@@ -162,7 +165,7 @@ def _evaluation_episode(
              f"({', '.join(p.object for p in pairs)})")
     layout = int(layout_text)
     specs = make_episode_specs(SimLabels(labels.path, (pair,), labels.affording), layouts=layout + 1,
-                               env_config=env_config)
+                               seed=seed, env_config=env_config)
     assert specs[layout].id == episode, (specs[layout].id, episode)
     return specs[layout]
 
