@@ -81,6 +81,13 @@ class PickConfig:
     # After the lift the arm holds still this long and the target must still be in the hand
     # (pinched, or where it was relative to the TCP): catches objects sliding out slowly.
     hold_steps: int = 48
+    # An object nearly as wide as the open hand can stay wedged between the open fingers and rise
+    # with the retreat. Seen (the target rose ``unjam_rise`` with the hand), the hand goes back
+    # down until the object's bottom is near the zone, turns by ``unjam_turn_deg`` one way, then
+    # the other, retreating after each turn (``_unjam``; 0: off, the release before 2026-12-06's
+    # session 30).
+    unjam_turn_deg: float = 20.0
+    unjam_rise: float = 0.02
     wrist: WristConfig = field(default_factory=WristConfig)
     clearance: ClearanceConfig = field(default_factory=ClearanceConfig)  # robot-side, see plan_pick
     # Lift high enough to carry the object over the tallest surface in the overhead depth
@@ -88,6 +95,12 @@ class PickConfig:
     # distractors (cut/knife/0: the hand hit a box on the way to the zone, the knife fell).
     clear_obstacles: bool = True
     obstacle_margin: float = 0.03
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.unjam_turn_deg < 90.0:
+            raise ValueError(f"PickConfig.unjam_turn_deg {self.unjam_turn_deg} must be in [0, 90) degrees (0: off)")
+        if self.unjam_rise <= 0.0:
+            raise ValueError(f"PickConfig.unjam_rise {self.unjam_rise} m must be > 0")
 
 
 def in_view_layout(whole_in_view: bool = True) -> TableLayout:
@@ -530,16 +543,47 @@ def execute_pick(
     if not carried:
         return progress.finish(Outcome.SLIP_DURING_TRANSPORT, None, "target lost during transport")
     robot.gripper.open()
-    retreat = robot.forward(plan.lower[-1].q).position + np.array([0.0, 0.0, cfg.retreat_height])
-    robot.move_linear(retreat, robot.tcp_pose().yaw, plan.lean)
+    released_z = _body_z(scene, target_body)
+    release = robot.forward(plan.lower[-1].q).position
+    retreat = release + np.array([0.0, 0.0, cfg.retreat_height])
+    yaw = robot.tcp_pose().yaw
+    robot.move_linear(retreat, yaw, plan.lean)
+    wedged = ""
+    if cfg.unjam_turn_deg > 0.0 and _body_z(scene, target_body) - released_z > cfg.unjam_rise:
+        turn = _unjam(robot, scene, target_body, release, yaw, plan.lean, released_z, cfg)
+        wedged = ("it stayed wedged between the open fingers, turning the hand did not free it" if turn is None
+                  else f"it stayed wedged between the open fingers; set down, the hand turned {turn:+.0f}° and "
+                       "let it go")
     env.step(cfg.release_settle_steps)
 
     in_zone = _in_drop_zone(scene, target_body)
+    outside = "target came to rest outside the drop zone"
     return progress.finish(
         Outcome.SUCCESS if in_zone else Outcome.OUTSIDE_DROP_ZONE,
         target_body,
-        "" if in_zone else "target came to rest outside the drop zone",
+        wedged if in_zone else (f"{outside} ({wedged})" if wedged else outside),
     )
+
+
+def _unjam(robot: CR3Robot, scene: Scene, body: int, release: npt.NDArray[np.float64], yaw: float, lean: float,
+           released_z: float, cfg: PickConfig) -> float | None:
+    """The target rose with the open hand (a wrist camera would see it between the fingers; the
+    simulation reads its height): set it down near the zone, turn the hand about the vertical so
+    the fingers no longer wedge it, and retreat; each way in turn until it stays down. Returns
+    the turn (degrees) that freed it, or None.
+
+    Why: an object nearly as wide as the open hand (the sponge, 7.2 cm against the Franka hand's
+    8 cm) can end up across the fingers at a slant after the carry and ride back up with them:
+    sim-dev's ``wipe/sponge/2`` at ``--seed 1`` came to rest outside the zone that way."""
+    low = release - np.array([0.0, 0.0, 0.8 * cfg.release_clearance])  # the object's bottom ~6 mm up
+    up = release + np.array([0.0, 0.0, cfg.retreat_height])
+    for turn in (cfg.unjam_turn_deg, -cfg.unjam_turn_deg):
+        robot.move_linear(low, yaw, lean)
+        robot.move_linear(low, yaw + math.radians(turn), lean)
+        robot.move_linear(up, yaw + math.radians(turn), lean)
+        if _body_z(scene, body) - released_z <= cfg.unjam_rise:
+            return turn
+    return None
 
 
 def _supports(scene: Scene, body: int, robot_body: int) -> str:
