@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import pybullet as p
 import pytest
@@ -17,7 +18,7 @@ from craft_e.runtime.sim.episode import PickConfig
     ("unjam_rise", 0.0, "unjam_rise 0.0 m must be > 0"),
 ])
 def test_bad_unjam_settings_are_named(field: str, value: float, message: str) -> None:
-    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(ValueError, match=re.escape(message)):
         PickConfig(**{field: value})
 
 
