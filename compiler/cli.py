@@ -24,7 +24,7 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
-from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR
+from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR, artifacts_hint
 from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail, make_console
 from ..signals import exit_through_python_on_sigterm
 from .cli_diagnose import register as register_diagnose
@@ -251,7 +251,8 @@ def build(
         # A replay build reads every answer from the cache: a mistyped --cache / CRAFT_CACHE would
         # otherwise surface as "no record for ..." about the first verb, naming a record path.
         fail(f"{cache}: no such record cache folder (from --cache or CRAFT_CACHE); a replay build "
-             "reads every answer from it (the shipped one is artifacts/cache); nothing was built")
+             f"reads every answer from it (the shipped one is artifacts/cache){artifacts_hint(cache)}; "
+             "nothing was built")
     if out is None and (config.out / "manifest.json").is_file() and not force:
         fail(f"{config.out}: a bundle already exists at the default output (artifacts/kb/{name}); "
              "pass --out DIR for a new bundle, or --force to replace it (nothing was written)")

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..paths import artifacts_hint
 from ..schemas.names import normalize_name, normalize_verb
 
 
@@ -40,7 +41,7 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
         data = path.read_bytes()
     except FileNotFoundError:
         raise VocabError(
-            f"{path}: file not found (pass a text file with one {kind[:-1]} per line)"
+            f"{path}: file not found (pass a text file with one {kind[:-1]} per line){artifacts_hint(path)}"
         ) from None
     except IsADirectoryError:
         raise VocabError(f"{path}: is a directory, expected a text file of {kind}") from None

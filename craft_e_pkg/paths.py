@@ -39,6 +39,22 @@ SIM_DEV_LABELS = LABELS_DIR / "sim_dev_labels.csv"
 SIM_VAL_LABELS = LABELS_DIR / "sim_val_labels.csv"
 
 
+def artifacts_hint(path: Path) -> str:
+    """A sentence to append to a "not found" message about ``path``, or "": when ``path`` lies
+    under the default ``artifacts`` folder, which is read from the current directory, and that
+    folder is not a checkout's (it lacks the committed ``vocab/`` and ``labels/``), the command
+    was run outside the checkout's root, and the message should say so. Whether ``path`` exists
+    is the caller's to know; this only looks at where it was sought."""
+    if os.environ.get("CRAFT_ARTIFACTS") or path.is_absolute() or ARTIFACTS_DIR.is_absolute():
+        return ""
+    if path.parts[: len(ARTIFACTS_DIR.parts)] != ARTIFACTS_DIR.parts:
+        return ""
+    if (ARTIFACTS_DIR / "vocab").is_dir() and (ARTIFACTS_DIR / "labels").is_dir():
+        return ""  # the checkout's own folder: the path is missing from it, not sought elsewhere
+    return (f" (`{ARTIFACTS_DIR}` is read from the current directory, {Path.cwd()}: run from the "
+            "checkout's root, or set CRAFT_ARTIFACTS to its artifacts folder)")
+
+
 def shared_dir() -> Path:
     """The shared reference folder: ``$CRAFT_SHARED`` or ``../shared`` (read at each call)."""
     env = os.environ.get("CRAFT_SHARED")

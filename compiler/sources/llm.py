@@ -18,6 +18,7 @@ from typing import Any, Protocol
 
 from pydantic import ValidationError
 
+from ...paths import artifacts_hint
 from ...schemas.v1.records import Record, RecordRequest
 from ..cache import RecordCache, check_payload, extract_json
 from ..prompts import PromptTemplate
@@ -152,7 +153,7 @@ class LLMSource:
                 f"(provider={self.provider}, model={self.model}); expected "
                 f"{self.cache.path_for(LLM_SOURCE, key)}. Record it with a live provider "
                 f"(craftc build --provider openai|gemini ...) or write an answer and store it "
-                f"with `craftc curate`."
+                f"with `craftc curate`.{artifacts_hint(self.cache.path_for(LLM_SOURCE, key))}"
             )
         return self._ask(call, request, key)
 

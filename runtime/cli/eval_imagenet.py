@@ -45,12 +45,13 @@ def eval_imagenet(
     """Nguyen et al.'s ImageNet functional-grounding protocol: every method on the same episodes."""
     from ..evaluation.common import emit_report
     from ..evaluation.imagenet import LabelsError, evaluate_imagenet
+    from ..evaluation.methods import NoMethodToRunError
 
     given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
                             beta, gamma)
     try:
         report = evaluate_imagenet(labels, methods=given.methods, episodes=episodes, seed=seed, pool=given.pool,
                                    cache_dir=given.cache_dir, settings=given.settings, threads=threads)
-    except (LabelsError, FileNotFoundError) as exc:
+    except (LabelsError, FileNotFoundError, NoMethodToRunError) as exc:
         fail(str(exc))
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)

@@ -33,6 +33,7 @@ def eval_pickability(
     landing_check: ep.LandingCheckOpt = True,
 ) -> None:
     """Each asset alone, picked as `craft eval sim` picks, choosing by E_grasp alone: what the pick loses."""
+    from ..evaluation.methods import NoMethodToRunError
     from ..evaluation.pickability import (
         UnknownAssetError,
         check_assets,
@@ -54,4 +55,4 @@ def eval_pickability(
         lambda bar: evaluate_pickability(chosen, config=config, layouts=layouts, seed=seed,
                                          env_config=env_config, method=method, progress=bar, jobs=jobs),
         "episodes", "episodes", json_out, markdown,
-        (UnknownAssetError, *ep.scene_errors()))
+        (UnknownAssetError, NoMethodToRunError, *ep.scene_errors()))

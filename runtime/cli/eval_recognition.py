@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from .common import checked_output_file
-from .episodes import run_with_progress
+from .episodes import run_with_progress, scene_errors
 
 
 def eval_recognition(
@@ -21,7 +21,8 @@ def eval_recognition(
 ) -> None:
     """Recognition top-1/top-5 of the 74 rendered sim assets under each perception setting."""
     from ..evaluation.recognition import evaluate_recognition
+    from ..kb.bundle import BundleError
 
     run_with_progress(lambda bar: evaluate_recognition(
         views, seed, threads=threads, progress=lambda d, t: bar(d, t, {"id": "rendering"})),
-        "images", "images", json_out, markdown)
+        "images", "images", json_out, markdown, (BundleError, *scene_errors()))

@@ -60,6 +60,7 @@ def eval_sim(
     in_view: ep.InViewOpt = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
+    from ..evaluation.methods import NoMethodToRunError
     from ..evaluation.sim_eval import LabelsError, evaluate_sim
     from ..grounding.size_cue import CueUnavailableError
     from ..sim.retry import RetryConfig
@@ -79,4 +80,4 @@ def eval_sim(
                                  env_config=env_config, retry=RetryConfig(retries=retries),
                                  classifier=classifier),
         "episodes", "episodes", json_out, markdown,
-        (LabelsError, CueUnavailableError, *ep.scene_errors()))
+        (LabelsError, CueUnavailableError, NoMethodToRunError, *ep.scene_errors()))

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ...files import sha256_file
+from ...paths import artifacts_hint
 
 FloatArray = npt.NDArray[np.float32]
 BoolArray = npt.NDArray[np.bool_]
@@ -174,6 +175,16 @@ def read_name_list(path: Path) -> list[str]:
         for ln in path.read_text(encoding="utf-8").splitlines()
         if ln.split("\t", 1)[0].strip() and not ln.startswith("#")
     ]
+
+
+def read_artifact_names(path: Path, what: str) -> list[str]:
+    """:func:`read_name_list` of a file the artifacts folder ships (a vocabulary), or a
+    ``FileNotFoundError`` that names it and, when it was sought under the default folder, why
+    it may not be there (``paths.artifacts_hint``)."""
+    try:
+        return read_name_list(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: {what} is missing{artifacts_hint(path)}") from None
 
 
 def emit_report(

@@ -54,6 +54,7 @@ from .common import (
     SkippedMethod,
     markdown_table,
     ndcg,
+    read_artifact_names,
     reciprocal_rank,
     topk_accuracy,
 )
@@ -305,8 +306,7 @@ def evaluate_imagenet(
             raise LabelsError(f"pool names classes outside the benchmark: {bad}")
     if vocabulary is None:
         vocabulary = list(pool) if pool is not None else [
-            _norm(line) for line in (VOCAB_DIR / "imagenet_objects.txt").read_text(encoding="utf-8").splitlines()
-            if line.strip() and not line.startswith("#")]
+            _norm(name) for name in read_artifact_names(VOCAB_DIR / "imagenet_objects.txt", "the ImageNet objects vocabulary")]
     sets, skipped_verbs = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
 
     runnable, skipped = load_methods(list(methods) if methods is not None else default_methods(kb))

@@ -146,9 +146,9 @@ def json_labels(path: Path, objects: Sequence[str] | None = None) -> LabelSet:
         pairs[str(verb)] = names
     candidates = raw.get("_objects") or objects
     if candidates is None:
-        from .common import read_name_list
+        from .common import read_artifact_names
 
-        candidates = read_name_list(VOCAB_DIR / "imagenet_objects.txt")
+        candidates = read_artifact_names(VOCAB_DIR / "imagenet_objects.txt", "the ImageNet objects vocabulary")
     return _from_names(path.stem, path, list(candidates), pairs)
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ...paths import KB_DIR
+from ...paths import KB_DIR, artifacts_hint
 from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, AffNorm, GroundingSettings
 from .common import SkippedMethod
 
@@ -73,11 +73,18 @@ def select_methods(
     return [specs[n] for n in dict.fromkeys(wanted)]
 
 
+class NoMethodToRunError(ValueError):
+    """Every method an evaluation was asked for was skipped: its table would hold no number, so
+    the command fails (exit 2) with each method's reason instead of spending its episodes and
+    writing a table of skips."""
+
+
 def load_methods(
     specs: Sequence[MethodSpec], text_space: str | None = None
 ) -> tuple[list[tuple[MethodSpec, Bundle]], list[SkippedMethod]]:
     """Load each method's bundle once; a method whose bundle is missing, unverifiable or (with
-    ``text_space``) in another embedding space is skipped with the reason."""
+    ``text_space``) in another embedding space is skipped with the reason. Raises
+    :class:`NoMethodToRunError` when every method is skipped."""
     from ..kb.bundle import BundleError, load_bundle
 
     loaded: dict[Path, Bundle | str] = {}
@@ -98,7 +105,23 @@ def load_methods(
                                          f"into {text_space}"))
         else:
             runnable.append((spec, bundle))
+    if specs and not runnable:
+        raise NoMethodToRunError(_nothing_runs(specs, skipped))
     return runnable, skipped
+
+
+def _nothing_runs(specs: Sequence[MethodSpec], skipped: Sequence[SkippedMethod]) -> str:
+    """One line for :class:`NoMethodToRunError`: methods sharing a bundle's reason are named
+    together, and the artifacts folder's hint, which each missing bundle's reason carries, is
+    said once at the end."""
+    hints = dict.fromkeys(h for h in (artifacts_hint(s.bundle) for s in specs if not s.bundle.exists()) if h)
+    by_reason: dict[str, list[str]] = {}
+    for s in skipped:
+        reason = s.reason
+        for hint in hints:
+            reason = reason.replace(hint, "")
+        by_reason.setdefault(reason, []).append(s.name)
+    return "no method can run: " + "; ".join(f"{', '.join(n)}: {r}" for r, n in by_reason.items()) + "".join(hints)
 
 
 def method_settings(spec: MethodSpec, settings: GroundingSettings, vocabulary: Sequence[str],

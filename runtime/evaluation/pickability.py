@@ -34,6 +34,7 @@ from .sim_eval import (
     placeable,
     plain_name,
     run_one_episode,
+    text_space,
     worker_context,
 )
 
@@ -223,10 +224,8 @@ def evaluate_pickability(
     # runs' (made before them)
     settings = settings or GroundingSettings(cavity_cue=False, hubness=False)
     spec_m = method or pickability_method()
+    runnable, _ = load_methods([spec_m], text_space(None))  # raises NoMethodToRunError if it cannot run
     enc = default_encoder(cfg.torch_threads)
-    runnable, skipped = load_methods([spec_m], enc.text_encoder_id)
-    if skipped:
-        raise FileNotFoundError(f"{spec_m.bundle}: {skipped[0].reason}")
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     build = partial(worker_context, [m for m, _ in runnable], cfg.torch_threads, settings, None)
     records: list[dict[str, Any]] = []

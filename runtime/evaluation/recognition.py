@@ -241,9 +241,9 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     from ..sim.assets import object_catalog
     from ..sim.pipeline import sim_vocabulary
 
+    bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)  # before the renders: fail fast
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
-    bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
     grounders = {s.cues: Grounder(bundle, GroundingSettings(
         vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue,
         cavity_cue=s.cavity_cue, hubness=s.hubness)) for s in SETTINGS}

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ...files import sha256_file
+from ...paths import artifacts_hint
 from ..grounding.grounder import normalize_verb_name
 from ..grounding.settings import GroundingSettings
 from ..sim.assets import object_asset, object_catalog
@@ -122,7 +123,7 @@ def load_sim_labels(path: Path) -> SimLabels:
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except FileNotFoundError:
-        raise LabelsError(f"{path}: labels file not found") from None
+        raise LabelsError(f"{path}: labels file not found{artifacts_hint(path)}") from None
     except UnicodeDecodeError as exc:
         raise LabelsError(f"{path}: not UTF-8 text (byte {exc.start}); save the labels as a UTF-8 "
                           "CSV of 'verb,object' rows") from None
@@ -323,6 +324,15 @@ def default_encoder(threads: int = 1, classifier: str | None = None) -> ImageEnc
     from ..encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier)
+
+
+def text_space(encoder: ImageEncoder | None) -> str:
+    """The text space ``encoder`` embeds into, or the default encoder's (:func:`default_encoder`)
+    without building it: the methods' bundles are checked against it first, so a run that
+    cannot ground fails before it loads weights or writes the encoder's cache."""
+    from ..encoders.conse import ConSEImageEncoder
+
+    return encoder.text_encoder_id if encoder is not None else ConSEImageEncoder.text_encoder_id
 
 
 # ---------------------------------------------------------------------------------------------
@@ -574,9 +584,9 @@ def evaluate_sim(
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
     settings = settings or GroundingSettings()
-    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier)
     method_specs = list(methods) if methods is not None else select_methods()
-    runnable, skipped = load_methods(method_specs, enc.text_encoder_id)
+    runnable, skipped = load_methods(method_specs, text_space(encoder))
+    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier)
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:

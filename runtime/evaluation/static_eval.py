@@ -55,6 +55,7 @@ from .sim_eval import (
     default_encoder,
     load_sim_labels,
     make_episode_specs,
+    text_space,
 )
 
 if TYPE_CHECKING:
@@ -474,9 +475,9 @@ def evaluate_static(
     specs = make_episode_specs(labels, layouts=layouts, seed=seed, max_pairs=max_pairs,
                                env_config=env_cfg)
     settings = settings or GroundingSettings()
-    enc = encoder if encoder is not None else default_encoder(threads, classifier)
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
-                                     enc.text_encoder_id)
+                                     text_space(encoder))
+    enc = encoder if encoder is not None else default_encoder(threads, classifier)
     from ..sim.pipeline import sim_vocabulary
 
     grounders = build_grounders(runnable, settings, sim_vocabulary())

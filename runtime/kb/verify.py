@@ -13,6 +13,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from ...paths import artifacts_hint
 from ...schemas.v1.bundle import (
     BUNDLE_FILES,
     MANIFEST_FILE,
@@ -85,7 +86,8 @@ def read_regular_file(path: Path, cap: int, expected: int | None = None) -> byte
 def read_manifest(folder: Path) -> Manifest:
     path = folder / MANIFEST_FILE
     if not folder.is_dir():
-        raise BundleError(f"{folder}: not a bundle folder (build one with `craftc build`)")
+        raise BundleError(f"{folder}: not a bundle folder (build one with `craftc build`)"
+                          + ("" if folder.exists() else artifacts_hint(folder)))
     try:
         raw = json.loads(read_regular_file(path, MAX_MANIFEST_BYTES))
     except FileNotFoundError:
