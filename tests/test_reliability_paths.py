@@ -109,3 +109,12 @@ def test_evaluations_refuse_before_building_the_encoder(tmp_path: Path, monkeypa
         static_eval.evaluate_static(labels, methods=missing)
     with pytest.raises(NoMethodToRunError):
         pickability.evaluate_pickability(["banana"], method=missing[0])
+
+
+def test_craft_eval_kb_with_no_bundle_that_loads_exits_2(elsewhere: Path) -> None:
+    """Its chance and oracle rows alone would make a table that compares nothing."""
+    from craft_e.runtime.evaluation.kb_eval import evaluate_kbs
+
+    with pytest.raises(NoMethodToRunError, match="no method can run: artifacts/kb/direct-llm: bundle unavailable") as info:
+        evaluate_kbs([Path("artifacts/kb/direct-llm")], ["zhu"])
+    assert str(info.value).count(HINT) == 1

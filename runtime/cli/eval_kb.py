@@ -31,6 +31,7 @@ def eval_kb(
     and leave-verbs-out choice of the E_aff form."""
     from ..evaluation.common import emit_report, read_name_list
     from ..evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
+    from ..evaluation.methods import NoMethodToRunError
     from ..grounding.energies import ENERGY_FORMS, check_energy_form
     from .common import check_named_bundles, err, fail
 
@@ -48,7 +49,7 @@ def eval_kb(
     try:
         report = evaluate_kbs(kb or DEFAULT_KBS, labels or ["zhu", "sim-dev"], forms=forms,
                               episodes_per_verb=episodes, seed=seed, folds=folds, objects=candidates)
-    except (KBLabelsError, FileNotFoundError) as exc:
+    except (KBLabelsError, FileNotFoundError, NoMethodToRunError) as exc:
         fail(str(exc))
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
                 lambda msg: err.print(msg, highlight=False, markup=False))

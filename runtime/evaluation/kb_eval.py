@@ -51,6 +51,7 @@ from .common import (
     SkippedMethod,
     markdown_table,
 )
+from .methods import NoMethodToRunError, nothing_runs
 from .zhu import ZhuMatrixError, average_precision, read_zhu_matrix
 
 FloatArray = npt.NDArray[np.float64]
@@ -445,6 +446,8 @@ def evaluate_kbs(
             skipped.append(SkippedMethod(str(path), f"bundle unavailable: {exc}"))
             continue
         rows += _bundle_rows(bundle, forms, label_sets, eps)
+    if bundles and len(skipped) == len(bundles):  # a table of the reference rows alone compares nothing
+        raise NoMethodToRunError(nothing_runs(bundles, skipped))
     lvo = leave_verbs_out([r for r in rows if r.kb not in ("chance", "oracle")], units, forms, folds, seed)
     config = {"episodes": episodes_per_verb, "seed": seed, "folds": folds, "forms": list(forms),
               "bundles": [str(b) for b in bundles], "labels": list(label_specs), "candidates": CANDIDATES}

@@ -106,15 +106,15 @@ def load_methods(
         else:
             runnable.append((spec, bundle))
     if specs and not runnable:
-        raise NoMethodToRunError(_nothing_runs(specs, skipped))
+        raise NoMethodToRunError(nothing_runs([s.bundle for s in specs], skipped))
     return runnable, skipped
 
 
-def _nothing_runs(specs: Sequence[MethodSpec], skipped: Sequence[SkippedMethod]) -> str:
+def nothing_runs(bundles: Sequence[Path], skipped: Sequence[SkippedMethod]) -> str:
     """One line for :class:`NoMethodToRunError`: methods sharing a bundle's reason are named
     together, and the artifacts folder's hint, which each missing bundle's reason carries, is
     said once at the end."""
-    hints = dict.fromkeys(h for h in (artifacts_hint(s.bundle) for s in specs if not s.bundle.exists()) if h)
+    hints = dict.fromkeys(h for h in (artifacts_hint(b) for b in bundles if not b.exists()) if h)
     by_reason: dict[str, list[str]] = {}
     for s in skipped:
         reason = s.reason
