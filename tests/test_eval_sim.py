@@ -39,7 +39,11 @@ def test_labels_accept_asset_ids_and_plain_names(tmp_path: Path) -> None:
     with pytest.raises(LabelsError, match="knife"):
         load_sim_labels(path)
     path.write_text("cut,knife,extra\n")
-    with pytest.raises(LabelsError, match=":1: expected"):
+    with pytest.raises(LabelsError, match=":1: expected") as extra:
+        load_sim_labels(path)
+    assert "double quote" not in str(extra.value)  # no quote: no word about one
+    path.write_text('verb,object\n"cut,knife\n')  # an unbalanced quote: csv reads one field 'cut,knife'
+    with pytest.raises(LabelsError, match=r":2: expected .*a double quote there opens one quoted field"):
         load_sim_labels(path)
 
 

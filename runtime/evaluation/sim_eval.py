@@ -137,7 +137,10 @@ def load_sim_labels(path: Path) -> SimLabels:
         if [c.lower() for c in cells] == ["verb", "object"]:
             continue
         if len(cells) != 2 or not all(cells):
-            raise LabelsError(f"{path}:{lineno}: expected 'verb,object', got {','.join(row)!r}")
+            quoted = any("," in c or "\n" in c for c in cells)  # csv read a '"' as the start of one field
+            raise LabelsError(f"{path}:{lineno}: expected 'verb,object', got {','.join(row)!r}"
+                              + ("; a double quote there opens one quoted field: remove it or close it"
+                                 if quoted else ""))
         verb, raw = normalize_verb_name(cells[0]), cells[1]
         if raw in catalog:
             assets: tuple[str, ...] = (raw,)
