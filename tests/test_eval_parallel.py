@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,24 @@ def test_workers_remove_their_temporary_folders_when_the_map_ends() -> None:
     folders = set(ordered_map(_worker_urdf_dir, list(range(4)), jobs=2, build=_offset))
     assert folders and all(folder.startswith("/") for folder in folders)
     assert not [folder for folder in folders if Path(folder).exists()]
+
+
+def _slow_worker_urdf_dir(ctx: int, item: int) -> str:
+    time.sleep(0.1)  # long enough that both workers take items
+    return _worker_urdf_dir(ctx, item)
+
+
+def test_terminated_workers_remove_their_temporary_folders() -> None:
+    """An error or a stopped run terminates the pool (SIGTERM to every worker), which killed
+    workers before their exit hooks ran: a ``craft eval sim --jobs 2`` stopped by ``kill`` (or
+    CI's timeout) left two /tmp/craft-e-urdf-* folders behind. Workers now exit through Python."""
+    seen: set[str] = set()
+    with pytest.raises(RuntimeError, match="stop"):
+        for folder in ordered_map(_slow_worker_urdf_dir, list(range(100)), jobs=2, build=_offset):
+            seen.add(folder)
+            if len(seen) == 2:  # both workers hold a folder: fail mid-map, so the pool is terminated
+                raise RuntimeError("stop")
+    assert not [folder for folder in seen if Path(folder).exists()]
 
 
 def _cli(tmp_path: Path, command: str, jobs: int) -> dict[str, Any]:

@@ -15,6 +15,8 @@ from collections.abc import Callable, Iterator, Sequence
 from functools import partial
 from typing import Any, TypeVar
 
+from ...signals import exit_through_python_on_sigterm
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -22,6 +24,9 @@ _CONTEXT: dict[str, Any] = {}
 
 
 def _init(build: Callable[[], Any]) -> None:
+    # ``pool.terminate`` (an error, or the main process stopped by SIGTERM) sends SIGTERM: exit
+    # through Python, so the worker's exit hooks (its temporary URDF folder's removal) still run
+    exit_through_python_on_sigterm()
     _CONTEXT["value"] = build()
 
 
