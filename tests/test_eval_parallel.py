@@ -86,3 +86,17 @@ def test_jobs_give_byte_identical_reports(tmp_path: Path, command: str) -> None:
     one = _cli(tmp_path, command, 1)
     two = _cli(tmp_path, command, 2)
     assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
+
+
+def test_jobs_beyond_the_cpus_run_one_worker_per_cpu(monkeypatch: pytest.MonkeyPatch,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Each worker holds ~0.65 GB (encoder, grasp network, simulator): ``--jobs 64`` on a 2-core
+    machine would exhaust its memory for no speed-up."""
+    from craft_e.runtime.cli import common
+
+    assert common.usable_cpus() >= 1  # the real count, before it is replaced below
+    monkeypatch.setattr(common, "usable_cpus", lambda: 2)
+    assert common.checked_jobs(1) == 1 and common.checked_jobs(2) == 2
+    capsys.readouterr()
+    assert common.checked_jobs(64) == 2
+    assert "--jobs 64: this machine gives the command 2 CPUs; running 2 workers" in capsys.readouterr().err

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol
 
 import typer
 
-from .common import checked_output_file, err, fail, note
+from .common import checked_jobs, checked_output_file, err, fail, note
 
 if TYPE_CHECKING:
     from ..evaluation.methods import MethodSpec
@@ -33,7 +33,8 @@ EpisodesJsonOpt = Annotated[Path | None, typer.Option("--json", help="Write resu
 TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)]
 MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
 SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
-JobsOpt = Annotated[int, typer.Option(min=1, help="Worker processes for episodes (results byte-identical to --jobs 1).")]
+JobsOpt = Annotated[int, typer.Option(min=1, callback=checked_jobs, help=(
+    "Worker processes for episodes, at most one per CPU (results byte-identical to --jobs 1)."))]
 ClassifierOpt = Annotated[str | None, typer.Option(
     help="ImageNet classifier of the ConSE image encoder: efficientnet-lite1 (default) | efficientnet-lite0 "
          "(reproduces runs from before 2026-12-04).", show_default=False)]
