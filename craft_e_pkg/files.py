@@ -81,12 +81,13 @@ def held_flock(path: Path, *, shared: bool = False, busy: Callable[[], Exception
         os.close(fd)
 
 
-def output_file_problem(path: Path) -> str | None:
+def output_file_problem(path: Path, example_suffix: str = ".json") -> str | None:
     """Why ``path`` cannot be written as a file (None when it can): checked when the option is
     parsed, so a bad ``--json``/``--markdown``/``--plot`` fails before the work, not after it
-    with half the outputs written."""
+    with half the outputs written. ``example_suffix``: the kind of file the option writes, for
+    the example name offered when ``path`` is a folder."""
     if path.is_dir():
-        return f"{path} is a folder; give a file path inside it, e.g. {path / ('out' + (path.suffix or '.json'))}"
+        return f"{path} is a folder; give a file path inside it, e.g. {path / ('out' + (path.suffix or example_suffix))}"
     if path.exists() and not path.is_file():
         return f"{path} exists and is not a regular file"
     return ancestor_problem(path)

@@ -156,7 +156,10 @@ def test_every_command_is_wired_and_answers_help() -> None:
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["eval", "kb", "--json", "{dir}"], "is a folder; give a file path inside it"),
+    (["eval", "kb", "--json", "{dir}"], "is a folder; give a file path inside it, e.g. {dir}/out.json"),
+    (["eval", "sim", "--labels", "x.csv", "--markdown", "{dir}"], "give a file path inside it, e.g. {dir}/out.md"),
+    (["ground", "--kb", "x", "--verb", "cut", "--image", "y", "--box", "0,0,5,5", "--plot", "{dir}"],
+     "give a file path inside it, e.g. {dir}/out.png"),
     (["eval", "kb", "--markdown", "{file}/t.md"], "is a file, so"),
     (["eval", "sim", "--labels", "x.csv", "--json", "{dir}"], "is a folder"),
     (["eval", "zhu", "--json", "{file}/z.json"], "is a file, so"),
@@ -172,7 +175,7 @@ def test_bad_outputs_and_seeds_fail_before_any_work(tmp_path: Path, args: list[s
     filled = [a.format(dir=tmp_path, file=tmp_path / "a-file") for a in args]
     result = runner.invoke(app, filled, env={"COLUMNS": "300"})
     assert result.exit_code == 2, result.output
-    assert message in " ".join(result.output.replace("│", " ").split())
+    assert message.format(dir=tmp_path) in " ".join(result.output.replace("│", " ").split())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
 
 

@@ -79,12 +79,22 @@ def read_names(path: Path, what: str) -> list[str]:
         fail(f"{path}: cannot read the {what} ({exc})")
 
 
-def checked_output_file(value: Path | None) -> Path | None:
-    """typer callback of an output file option (see ``output_file_problem``)."""
-    problem = None if value is None else output_file_problem(value)
+def _checked_output(value: Path | None, example_suffix: str) -> Path | None:
+    problem = None if value is None else output_file_problem(value, example_suffix)
     if problem is not None:
         raise typer.BadParameter(problem)
     return value
+
+
+# typer passes a callback's value to its last plain parameter: each callback takes only ``value``
+def checked_output_file(value: Path | None) -> Path | None:
+    """typer callback of an output file option (see ``output_file_problem``)."""
+    return _checked_output(value, ".json")
+
+
+def checked_markdown_file(value: Path | None) -> Path | None:
+    """typer callback of a ``--markdown`` option: as ``checked_output_file``, offering ``out.md``."""
+    return _checked_output(value, ".md")
 
 
 def usable_cpus() -> int:
@@ -119,7 +129,7 @@ PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 def checked_plot_file(value: Path | None) -> Path | None:
     """typer callback of a ``--plot`` option: a writable file with a format matplotlib writes."""
-    checked_output_file(value)
+    _checked_output(value, ".png")
     if value is not None and value.suffix.lower() not in PLOT_SUFFIXES:
         raise typer.BadParameter(f"{value}: unknown figure format {value.suffix or '(none)'!r}; "
                                  f"end the name with one of {', '.join(PLOT_SUFFIXES)}")
@@ -141,7 +151,7 @@ _FORMS = "sum-tanh | normalized-product | specificity | required-veto | specific
 
 KbDirOpt = Annotated[Path | None, typer.Option(help="Folder of the baseline bundles (conceptnet/, direct-llm/).")]
 JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)]
-MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_output_file)]
+MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_markdown_file)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
 AffNormOpt = Annotated[str | None, typer.Option(help="E_aff scaling: none | verb-best (each verb's best KB object at -1; default: grounding/settings.py, docs/energy_weights.md).")]

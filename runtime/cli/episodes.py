@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol
 
 import typer
 
-from .common import checked_jobs, checked_output_file, err, fail, note
+from .common import checked_jobs, checked_markdown_file, checked_output_file, err, fail, note
 
 if TYPE_CHECKING:
     from ..evaluation.methods import MethodSpec
@@ -30,7 +30,7 @@ SceneKbDirOpt = Annotated[Path | None, typer.Option(
     help="Folder of the bundles (craft-e-default/, conceptnet/, direct-llm/).")]
 EpisodesJsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results (with every episode) as JSON.",
                                                       callback=checked_output_file)]
-TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)]
+TablesOpt = Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_markdown_file)]
 MaxPairsOpt = Annotated[int | None, typer.Option(min=1, help="Only the first N verb–target pairs.")]
 SceneThreadsOpt = Annotated[int, typer.Option(min=1, help="Torch threads (grasp networks, image encoder).")]
 JobsOpt = Annotated[int, typer.Option(min=1, callback=checked_jobs, help=(

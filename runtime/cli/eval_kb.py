@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from .common import checked_output_file
+from .common import checked_markdown_file, checked_output_file
 
 
 def eval_kb(
@@ -25,7 +25,7 @@ def eval_kb(
     seed: Annotated[int, typer.Option(min=0, help="Seed of the episodes and the verb folds.")] = 0,
     folds: Annotated[int, typer.Option(min=2, help="Leave-verbs-out folds.")] = 5,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_markdown_file)] = None,
 ) -> None:
     """Knowledge alone: AP, AUC and 5-candidate top-1 of E_aff per verb, chance and oracle rows,
     and leave-verbs-out choice of the E_aff form."""

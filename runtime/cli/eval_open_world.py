@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from ...paths import KB_DIR
-from .common import checked_output_file
+from .common import checked_markdown_file, checked_output_file
 
 
 def eval_open_world(
@@ -19,7 +19,7 @@ def eval_open_world(
     episodes: Annotated[int, typer.Option(min=1, help="5-candidate episodes per verb.")] = 100,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the episodes.")] = 0,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_output_file)] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown tables.", callback=checked_markdown_file)] = None,
 ) -> None:
     """Objects and verbs the KB has never seen: remove them, infer them, compare AP with the
     in-KB result; abstention rate and precision; the thresholds' dev grid."""

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from .common import checked_output_file
+from .common import checked_markdown_file, checked_output_file
 from .episodes import run_with_progress, scene_errors
 
 
@@ -17,7 +17,7 @@ def eval_recognition(
     threads: Annotated[int, typer.Option(min=1, help="Torch threads of the image encoder.")] = 1,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the table (and per-asset hits) as JSON.",
                                                                      callback=checked_output_file)] = None,
-    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_output_file)] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_markdown_file)] = None,
 ) -> None:
     """Recognition top-1/top-5 of the 74 rendered sim assets under each perception setting."""
     from ..evaluation.recognition import evaluate_recognition

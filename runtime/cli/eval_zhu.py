@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from ...paths import KB_DIR, shared_dir
-from .common import checked_output_file
+from .common import checked_markdown_file, checked_output_file
 
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "conceptnet", KB_DIR / "direct-llm"]
 
@@ -22,7 +22,7 @@ def eval_zhu(
         Path | None, typer.Option(help="Zhu CSV (default: shared affordance_dev).")
     ] = None,
     markdown: Annotated[
-        Path | None, typer.Option(help="Write the Markdown table here.", callback=checked_output_file)
+        Path | None, typer.Option(help="Write the Markdown table here.", callback=checked_markdown_file)
     ] = None,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write per-affordance AP as JSON.", callback=checked_output_file)
