@@ -137,7 +137,7 @@ def load_sim_labels(path: Path) -> SimLabels:
         if [c.lower() for c in cells] == ["verb", "object"]:
             continue
         if len(cells) != 2 or not all(cells):
-            quoted = any("," in c or "\n" in c for c in cells)  # csv read a '"' as the start of one field
+            quoted = any("," in c for c in cells)  # only a quoted field holds a comma: csv read a '"' as opening one
             raise LabelsError(f"{path}:{lineno}: expected 'verb,object', got {','.join(row)!r}"
                               + ("; a double quote there opens one quoted field: remove it or close it"
                                  if quoted else ""))
