@@ -37,13 +37,8 @@ from craft_e.runtime.evaluation.sim_eval import (
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.sim.active_look import ActiveLookConfig
 from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.pipeline import (
-    PipelineConfig,
-    frame_look,
-    grounding_rois,
-    perceive,
-    sim_vocabulary,
-)
+from craft_e.runtime.sim.perceive import frame_look, grounding_rois, perceive
+from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
 METHODS = ("CRAFT-E", "direct-LLM")
 TOP_K = (2, 3, 5)  # 5: every ROI of a scene (1 target + 4 distractors, as segmented)

@@ -34,7 +34,8 @@ from craft_e.runtime.evaluation.sim_eval import (
 from craft_e.runtime.grounding import cavity_cue
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.pipeline import PipelineConfig, grounding_rois, perceive, sim_vocabulary
+from craft_e.runtime.sim.perceive import grounding_rois, perceive
+from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
 METHOD = "CRAFT-E"
 Setting = tuple[float, float, float, bool]

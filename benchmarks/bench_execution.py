@@ -25,7 +25,8 @@ from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels, make_episode_specs
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.episode import execute_pick
-from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, perceive
+from craft_e.runtime.sim.perceive import perceive
+from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart
 from craft_e.runtime.sim.surface import object_centre
 
 

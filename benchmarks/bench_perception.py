@@ -81,6 +81,7 @@ from craft_e.runtime.sim.active_look import (
     ActiveLookConfig,
     LookingGrounder,
 )
+from craft_e.runtime.sim.candidates import GraspCandidate
 from craft_e.runtime.sim.choose import (
     LazyROI,
     ground_lazily,
@@ -91,16 +92,8 @@ from craft_e.runtime.sim.choose import (
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import PlanCache
 from craft_e.runtime.sim.fallback import FallbackConfig
-from craft_e.runtime.sim.pipeline import (
-    GraspCandidate,
-    PipelineConfig,
-    frame_look,
-    grounding_rois,
-    perceive,
-    relocated_grasp,
-    sim_vocabulary,
-    torch_threads,
-)
+from craft_e.runtime.sim.perceive import frame_look, grounding_rois, perceive, torch_threads
+from craft_e.runtime.sim.pipeline import PipelineConfig, relocated_grasp, sim_vocabulary
 
 GRASP_TOL = 1e-4  # the robot's networks equal the evaluation's to float rounding (~1e-6)
 

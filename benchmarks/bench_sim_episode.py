@@ -36,13 +36,8 @@ from craft_e.runtime.evaluation.sim_eval import (
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import execute_pick
-from craft_e.runtime.sim.pipeline import (
-    PipelineConfig,
-    SavedStart,
-    grounding_rois,
-    perceive,
-    sim_vocabulary,
-)
+from craft_e.runtime.sim.perceive import grounding_rois, perceive
+from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, sim_vocabulary
 
 
 @dataclass

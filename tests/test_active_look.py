@@ -221,7 +221,7 @@ def test_an_episode_with_the_look_records_what_it_looked_at_and_the_default_does
     from craft_e.runtime.evaluation.sim_eval import EpisodeSpec, episode_record
     from craft_e.runtime.grounding.grounder import Grounder
     from craft_e.runtime.kb.bundle import load_bundle
-    from craft_e.runtime.sim.pipeline import grounding_rois
+    from craft_e.runtime.sim.perceive import grounding_rois
 
     encoder = ConSEImageEncoder(threads=1)
     grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"),

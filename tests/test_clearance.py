@@ -228,14 +228,11 @@ def test_in_the_demo_scene_the_box_beside_the_knife_blocks_its_grasps_only_with_
     cracker box); with it, the overhead depth shows the box under the hand and every fitting
     grasp of the knife is refused, while a grasp elsewhere on the table stays allowed."""
     from craft_e.runtime.perception.segment import segment
+    from craft_e.runtime.sim.candidates import fitting_with_refinements, raw_candidates
     from craft_e.runtime.sim.choose import LazyROI, pick_reachable
     from craft_e.runtime.sim.clearance import heights_around
     from craft_e.runtime.sim.episode import plan_pick
-    from craft_e.runtime.sim.pipeline import (
-        PipelineConfig,
-        fitting_with_refinements,
-        raw_candidates,
-    )
+    from craft_e.runtime.sim.pipeline import PipelineConfig
     from craft_e.runtime.sim.surface import RaisedPoints
 
     config = PipelineConfig()
@@ -279,11 +276,11 @@ def test_the_preference_takes_the_first_clear_grasp_and_never_drops_a_region(mon
     import dataclasses
 
     from craft_e.runtime.grasp.geometry import Grasp2D
-    from craft_e.runtime.sim import pipeline
+    from craft_e.runtime.sim import candidates, grasp_checks, pipeline
 
-    def candidate(i: int) -> pipeline.GraspCandidate:
+    def candidate(i: int) -> candidates.GraspCandidate:
         pose = TopDownGrasp(position=np.array([0.4, 0.01 * i, 0.05]), yaw=0.0, width_m=0.04)
-        return pipeline.GraspCandidate(Grasp2D((10.0 * i, 5.0), 0.0, 20.0, 10.0, 1.0 - 0.1 * i), pose)
+        return candidates.GraspCandidate(Grasp2D((10.0 * i, 5.0), 0.0, 20.0, 10.0, 1.0 - 0.1 * i), pose)
 
     passing = {1, 2, 3}  # candidate 0 fails the finger check
     blocked: set[int] = set()
@@ -294,15 +291,15 @@ def test_the_preference_takes_the_first_clear_grasp_and_never_drops_a_region(mon
     def finger(material: object, pose: TopDownGrasp, *_: object) -> tuple[bool, str]:
         return round(float(pose.position[1]) / 0.01) in passing, ""
 
-    monkeypatch.setattr(pipeline, "pick_problems", problems)
-    monkeypatch.setattr(pipeline, "finger_check", finger)
+    monkeypatch.setattr(grasp_checks, "pick_problems", problems)
+    monkeypatch.setattr(grasp_checks, "finger_check", finger)
     base = pipeline.PipelineConfig()
     prefer = dataclasses.replace(base, pick=dataclasses.replace(base.pick, clearance=ClearanceConfig(prefer=True)))
-    surfaces = pipeline._Surfaces(np.zeros((0, 3)), 0.0, HeightMap(np.zeros((0, 3)), 0.005, 0.0))
+    surfaces = grasp_checks.Surfaces(np.zeros((0, 3)), 0.0, HeightMap(np.zeros((0, 3)), 0.005, 0.0))
     cands = [candidate(i) for i in range(4)]
 
     def usable(config: pipeline.PipelineConfig) -> int | None:
-        chosen = pipeline._usable(None, list(cands), surfaces, config)[1]  # type: ignore[arg-type]
+        chosen = grasp_checks.usable_grasps(None, list(cands), surfaces, config)[1]  # type: ignore[arg-type]
         return round(float(chosen[0].rect.center_xy[0]) / 10.0) if chosen else None
 
     assert usable(base) == usable(prefer) == 1  # nothing blocked: the same grasp

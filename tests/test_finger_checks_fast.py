@@ -28,15 +28,15 @@ from craft_e.runtime.grasp.geometry import (
     wrap_half_pi,
 )
 from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.episode import PickConfig
-from craft_e.runtime.sim.fingers import FingerGeometry, SurfacePoints, finger_check
-from craft_e.runtime.sim.pipeline import (
+from craft_e.runtime.sim.candidates import (
     GraspCandidate,
-    PipelineConfig,
     fitting_with_refinements,
     tip_height,
     with_refinements,
 )
+from craft_e.runtime.sim.episode import PickConfig
+from craft_e.runtime.sim.fingers import FingerGeometry, SurfacePoints, finger_check
+from craft_e.runtime.sim.pipeline import PipelineConfig
 from craft_e.runtime.sim.refine import RefineConfig, candidates, refine, turns, wall_runs
 
 FloatArray = npt.NDArray[np.float64]

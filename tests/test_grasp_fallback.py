@@ -20,7 +20,7 @@ from conftest import load_script
 
 from craft_e.runtime.grasp.antipodal import AntipodalConfig, sample_antipodal_grasps
 from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D, TopDownGrasp
-from craft_e.runtime.sim import pipeline
+from craft_e.runtime.sim import candidates, grasp_checks, perceive, pipeline
 from craft_e.runtime.sim.fallback import FallbackConfig, fallback_grasps
 
 INTR = CameraIntrinsics.realsense_d435()
@@ -81,12 +81,12 @@ def test_only_grasp_networks_with_checks_have_a_fallback() -> None:
     assert not pipeline.PipelineConfig(fallback=FallbackConfig(enabled=False)).uses_fallback
 
 
-def _candidate(i: int, quality: float, fallback: bool = False) -> pipeline.GraspCandidate:
+def _candidate(i: int, quality: float, fallback: bool = False) -> candidates.GraspCandidate:
     pose = TopDownGrasp(position=np.array([0.4, 0.01 * i, 0.05]), yaw=0.0, width_m=0.04)
-    return pipeline.GraspCandidate(Grasp2D((10.0 * i, 5.0), 0.0, 20.0, 10.0, quality), pose, fallback=fallback)
+    return candidates.GraspCandidate(Grasp2D((10.0 * i, 5.0), 0.0, 20.0, 10.0, quality), pose, fallback=fallback)
 
 
-def _index(c: pipeline.GraspCandidate) -> int:
+def _index(c: candidates.GraspCandidate) -> int:
     assert c.pose is not None
     return round(float(c.pose.position[1]) / 0.01)
 
@@ -102,25 +102,25 @@ def test_the_evaluation_asks_for_the_fallback_only_when_no_network_grasp_fits(
     def problems(env: object, pose: TopDownGrasp, *_: object) -> tuple[str | None, str | None]:
         return ("unreachable" if round(float(pose.position[1]) / 0.01) in unreachable else None), None
 
-    monkeypatch.setattr(pipeline, "finger_check", finger)
-    monkeypatch.setattr(pipeline, "pick_problems", problems)
+    monkeypatch.setattr(grasp_checks, "finger_check", finger)
+    monkeypatch.setattr(grasp_checks, "pick_problems", problems)
     config = pipeline.PipelineConfig()
-    surfaces = pipeline._Surfaces(np.zeros((0, 3)), 0.0)
+    surfaces = grasp_checks.Surfaces(np.zeros((0, 3)), 0.0)
     asked: list[int] = []
 
-    def more() -> list[pipeline.GraspCandidate]:
+    def more() -> list[candidates.GraspCandidate]:
         asked.append(1)
         return [_candidate(5, 0.15, fallback=True), _candidate(6, 0.1, fallback=True)]
 
     network = [_candidate(0, 0.9), _candidate(1, 0.5)]
-    listed, usable = pipeline._usable(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
+    listed, usable = grasp_checks.usable_grasps(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
     assert [_index(c) for c in usable] == [1] and not asked and len(listed) == 2
     unreachable.add(1)  # a network grasp fits but its pick is unreachable: the region has none
-    listed, usable = pipeline._usable(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
+    listed, usable = grasp_checks.usable_grasps(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
     assert not usable and not asked and len(listed) == 2
     passing.clear()
     passing.add(6)
-    listed, usable = pipeline._usable(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
+    listed, usable = grasp_checks.usable_grasps(None, list(network), surfaces, config, more=more)  # type: ignore[arg-type]
     assert asked == [1]
     assert [_index(c) for c in listed] == [0, 1, 5, 6]  # the fallback's grasps are listed after the network's
     assert [(_index(c), c.fallback) for c in usable] == [(6, True)]
@@ -150,7 +150,7 @@ def test_in_a_dev_scene_both_paths_give_the_dice_the_same_fallback_grasp() -> No
         env.reset(spec.scene)
         env.robot.reset_home()
         obs = env.capture()
-        eager = pipeline.perceive(env, encoder, config, obs)
+        eager = perceive.perceive(env, encoder, config, obs)
         dice = [i for i, r in enumerate(eager.rois) if r.usable and r.usable[0].fallback]
         assert len(dice) == 1 and env.scene.body_assets[eager.rois[dice[0]].body] == "dice"
         used = eager.rois[dice[0]].usable[0]
@@ -163,7 +163,7 @@ def test_in_a_dev_scene_both_paths_give_the_dice_the_same_fallback_grasp() -> No
         assert lazy[dice[0]].as_roi("dice").grasp_scores == [1.0]  # the placeholder, before the sampler
         lazy[dice[0]].run_fallback()
         first = lazy[dice[0]].as_roi("dice").grasps[0]
-        assert isinstance(first, pipeline.GraspCandidate) and first.fallback and first.pose is not None
+        assert isinstance(first, candidates.GraspCandidate) and first.fallback and first.pose is not None
         np.testing.assert_allclose(first.pose.position, used.pose.position, atol=1e-9)
         assert (first.pose.yaw, first.quality) == pytest.approx((used.pose.yaw, used.quality))
 
@@ -187,13 +187,13 @@ def test_the_fallback_leaves_the_finger_checks_clearance_so_the_sponge_gets_a_gr
     spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
                 if s.id == "clean/sponge/1")
     encoder = default_encoder(1)
-    found: dict[str, list[pipeline.GraspCandidate]] = {}
+    found: dict[str, list[candidates.GraspCandidate]] = {}
     with SimEnv() as env:
         env.reset(spec.scene)
         for name, fallback in (("hand", FallbackConfig()), ("sampler", FallbackConfig(min_clearance_m=0.005))):
             env.robot.reset_home()
             obs = env.capture()
-            eager = pipeline.perceive(env, encoder, pipeline.PipelineConfig(fallback=fallback), obs)
+            eager = perceive.perceive(env, encoder, pipeline.PipelineConfig(fallback=fallback), obs)
             sponge = [r for r in eager.rois if r.body is not None and env.scene.body_assets[r.body] == "sponge"]
             assert len(sponge) == 1
             assert not any(c.fits for c in sponge[0].candidates if not c.fallback)  # no network grasp fits

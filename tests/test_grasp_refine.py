@@ -3,7 +3,7 @@
 Why: every ``no_grasp`` episode on the dev scenes was a cup, mug, bottle, pitcher or sponge whose
 network grasp closed across a section wider than the hand's 76 mm, while a turn of the same grasp
 or one finger inside the rim would fit. Checked on synthetic surfaces with known answers, and on
-what the robot's candidate list does with them (``pipeline.with_refinements``).
+what the robot's candidate list does with them (``candidates.with_refinements``).
 """
 
 from __future__ import annotations
@@ -16,15 +16,10 @@ import pytest
 
 from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D, TopDownGrasp
 from craft_e.runtime.perception.observation import Observation
+from craft_e.runtime.sim.candidates import GraspCandidate, tip_height, with_refinements
 from craft_e.runtime.sim.episode import PickConfig
-from craft_e.runtime.sim.pipeline import (
-    FingerGeometry,
-    GraspCandidate,
-    PipelineConfig,
-    finger_check,
-    tip_height,
-    with_refinements,
-)
+from craft_e.runtime.sim.fingers import FingerGeometry, finger_check
+from craft_e.runtime.sim.pipeline import PipelineConfig
 from craft_e.runtime.sim.refine import RefineConfig, candidates, refine, turns, wall_runs
 
 FloatArray = npt.NDArray[np.float64]

@@ -148,7 +148,8 @@ def test_beside_the_tall_block_the_knife_is_picked_with_the_hand_leaned() -> Non
     from craft_e.runtime.sim.choose import perceive_for_pick, relocate_choice
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.episode import Outcome, execute_pick
-    from craft_e.runtime.sim.pipeline import PipelineConfig, perceive, relocated_grasp
+    from craft_e.runtime.sim.perceive import perceive
+    from craft_e.runtime.sim.pipeline import PipelineConfig, relocated_grasp
 
     spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=2) if s.id == "cut/knife/1")
     config = PipelineConfig()

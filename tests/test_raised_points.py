@@ -16,7 +16,7 @@ import pytest
 
 from craft_e.runtime.grasp.geometry import CameraIntrinsics
 from craft_e.runtime.perception.observation import Observation
-from craft_e.runtime.sim.pipeline import raised_mask
+from craft_e.runtime.sim.perceive import raised_mask
 from craft_e.runtime.sim.surface import RaisedPoints, object_centre
 
 

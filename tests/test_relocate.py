@@ -188,7 +188,8 @@ def test_in_the_demo_scene_both_paths_move_the_blocked_knife_grasp_alike_and_the
     from craft_e.runtime.sim.choose import perceive_for_pick, relocate_choice
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.episode import Outcome, execute_pick
-    from craft_e.runtime.sim.pipeline import PipelineConfig, perceive, relocated_grasp
+    from craft_e.runtime.sim.perceive import perceive
+    from craft_e.runtime.sim.pipeline import PipelineConfig, relocated_grasp
 
     spec = next(s for s in make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1) if s.id == "cut/knife/0")
     config = PipelineConfig()

@@ -16,8 +16,8 @@ import numpy.typing as npt
 
 from craft_e.runtime.grasp.geometry import CameraIntrinsics, TopDownGrasp
 from craft_e.runtime.perception.observation import Observation
+from craft_e.runtime.sim.fingers import FingerGeometry, finger_check
 from craft_e.runtime.sim.oracle import OracleConfig, rim_grasps
-from craft_e.runtime.sim.pipeline import FingerGeometry, finger_check
 
 FloatArray = npt.NDArray[np.float64]
 CAMERA_HEIGHT = 0.7  # m above the table (z = 0)

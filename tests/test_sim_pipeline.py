@@ -15,17 +15,15 @@ from craft_e.paths import KB_DIR
 from craft_e.runtime.grasp.geometry import TopDownGrasp
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.perception.roi import roi_from_mask
+from craft_e.runtime.sim.choice_errors import ChoiceError
 from craft_e.runtime.sim.env import SimEnv
 from craft_e.runtime.sim.episode import execute_pick
+from craft_e.runtime.sim.fingers import FingerGeometry, finger_check
+from craft_e.runtime.sim.perceive import perceive, raster_order
 from craft_e.runtime.sim.pipeline import (
-    ChoiceError,
     Failure,
-    FingerGeometry,
     PipelineConfig,
     SavedStart,
-    finger_check,
-    perceive,
-    raster_order,
     run_episode,
     sim_vocabulary,
 )
@@ -105,7 +103,7 @@ def test_oracle_episode_runs_end_to_end_with_metrics(
 def test_true_class_probabilities_are_one_hot_on_the_covered_body(
     env: SimEnv, grounders: dict[str, Any], encoder: Any
 ) -> None:
-    from craft_e.runtime.sim.pipeline import (
+    from craft_e.runtime.sim.choice_errors import (
         true_class_choice,
         true_class_grounding,
         true_class_probabilities,
@@ -137,7 +135,7 @@ def _perception_with_targets(ious: list[float]) -> Any:
 
 
 def test_a_wrong_choice_is_perception_knowledge_or_energies() -> None:
-    from craft_e.runtime.sim.pipeline import TrueClassGrounding, choice_error
+    from craft_e.runtime.sim.choice_errors import TrueClassGrounding, choice_error
 
     per = _perception_with_targets([0.0, 0.9, 0.0])  # ROI 1 is the target
     # named right, grounding picks the target: the object was not recognised
@@ -231,7 +229,8 @@ def test_colours_are_measured_only_for_a_grounder_that_reads_them(env: SimEnv, e
     from craft_e.runtime.grounding.grounder import Grounder
     from craft_e.runtime.kb.bundle import load_bundle
     from craft_e.runtime.kb.colours import COLOUR_TERMS
-    from craft_e.runtime.sim.pipeline import grounding_rois, run_episode
+    from craft_e.runtime.sim.perceive import grounding_rois
+    from craft_e.runtime.sim.pipeline import run_episode
 
     env.reset(EASY)
     config = PipelineConfig(grasp="oracle", rois="oracle")

@@ -36,7 +36,8 @@ def test_a_sponge_wedged_in_the_open_hand_is_set_down_in_the_zone() -> None:
     )
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.episode import Outcome, execute_pick
-    from craft_e.runtime.sim.pipeline import PipelineConfig, perceive, relocated_grasp
+    from craft_e.runtime.sim.perceive import perceive
+    from craft_e.runtime.sim.pipeline import PipelineConfig, relocated_grasp
     from craft_e.runtime.sim.surface import object_centre
 
     labels = load_sim_labels(SIM_DEV_LABELS)

@@ -142,7 +142,7 @@ def render_views(assets: Sequence[str], views: int = 3, seed: int = 0,
     from ..sim.assets import object_catalog
     from ..sim.camera import Camera, render
     from ..sim.fingers import FingerGeometry
-    from ..sim.pipeline import raised_mask
+    from ..sim.perceive import raised_mask
     from ..sim.scene import SceneSpec, TableLayout, make_scene
 
     catalog = object_catalog()

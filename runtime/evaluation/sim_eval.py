@@ -15,7 +15,7 @@ generator when its footprints cannot be placed on the table (checked before any 
 or when, once the scene has settled, two objects lie closer than 1 cm (a tall bottle that
 toppled onto a neighbour): the protocol's objects do not overlap.
 
-Each episode is perceived once (``sim.pipeline``) and every method grounds the same ROIs; see
+Each episode is perceived once (``sim.perceive``) and every method grounds the same ROIs; see
 ``runtime/sim/pipeline.py`` for the metrics and the failure classes. The JSON holds no wall-clock
 value, so two runs give identical files.
 """
@@ -415,7 +415,8 @@ def episode_record(spec: EpisodeSpec, result: EpisodeResult, detect_iou: float =
 def summarize(name: str, description: str, records: Sequence[dict[str, Any]],
               settings: dict[str, Any]) -> MethodResult:
     """A method's row: 3D, Detect, Grasp Rate, the failure breakdown and per-verb rates."""
-    from ..sim.pipeline import ChoiceError, Failure
+    from ..sim.choice_errors import ChoiceError
+    from ..sim.pipeline import Failure
 
     mine = [(r, r["methods"][name]) for r in records]
     n = max(len(mine), 1)
@@ -493,7 +494,8 @@ class SimReport:
 
     def failure_table(self) -> str:
         """Episodes per outcome class and method (the paper's failure analysis)."""
-        from ..sim.pipeline import ChoiceError, Failure
+        from ..sim.choice_errors import ChoiceError
+        from ..sim.pipeline import Failure
 
         kinds = [f.value for f in Failure]
         used = [k for k in kinds if any(r.settings["failures"][k] for r in self.results)]

@@ -248,12 +248,12 @@ def render_scene(
     from ..sim.env import SimEnv
     from ..sim.fingers import FingerGeometry
     from ..sim.oracle import gt_rois
-    from ..sim.pipeline import majority_body, raised_mask, raster_order, torch_threads
+    from ..sim.perceive import majority_body, raised_mask, raster_order, torch_threads
 
     with SimEnv(env_config) as env:
         scene = env.reset(spec.scene)
         obs = env.capture()
-        sharp = env.capture_rgb(rgb_scale)  # crops for the encoder, as in sim.pipeline
+        sharp = env.capture_rgb(rgb_scale)  # crops for the encoder, as in sim.perceive
         truth = raster_order(gt_rois(obs, scene))
         bodies = [o.body_id for o in scene.objects]
         rects = {b: gt_grasp_rects(scene, obs, b, gt_config) for b in {r.label for r in truth}
@@ -266,7 +266,7 @@ def render_scene(
         boxes = [r.box_xywh for r in truth] + [r.box_xywh for r in predicted]
         emb, cls = encode_with_classes(encoder, [crop_box(sharp, tuple(v * rgb_scale for v in b))
                                                  for b in boxes])  # [N, d], N top-class lists
-        # one network pass per scene, as the robot's pipeline (sim.pipeline.raw_candidates)
+        # one network pass per scene, as the robot's pipeline (sim.candidates.raw_candidates)
         net = {b: [tuple(g) for g in predict_grasps_rois(b, obs.rgb, obs.depth, [r.mask for r in predicted],
                                                         intrinsics=obs.intrinsics)] for b in backends}
     gt_emb, pred_emb = emb[: len(truth)], emb[len(truth):]

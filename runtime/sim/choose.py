@@ -1,6 +1,6 @@
 """The robot's own path from one frame to one pick: IK only for the grasps grounding asks about.
 
-``sim.pipeline.perceive`` checks every ROI's grasps up front, finger fit and then the whole
+``sim.perceive.perceive`` checks every ROI's grasps up front, finger fit and then the whole
 pick's IK (~49 IK solutions a pick), because the evaluation reports each ROI's usable grasp.
 A robot needs only the grasp it will execute. ``ground_lazily`` grounds with each ROI's best
 grasp that fits the fingers (IK not yet known), plans the IK of the chosen ROI's grasp only,
@@ -64,7 +64,7 @@ class LazyROI:
     classes: tuple[tuple[int, float], ...] | None = None  # top ImageNet classes, for the look-alike cue
     next_index: int = 0  # fitting[next_index] is the best grasp IK has not ruled out
     verified: set[int] = field(default_factory=set)  # indices IK accepted
-    #: fitting grasps not checked yet, in order (``pipeline.iter_fitting_with_refinements``):
+    #: fitting grasps not checked yet, in order (``candidates.iter_fitting_with_refinements``):
     #: ``fitting`` grows from it only as far as grounding needs, so an ROI whose first grasp fits
     #: costs one finger check
     unchecked: Iterator[Any] | None = None
@@ -178,15 +178,9 @@ def perceive_for_pick(
     from ..encoders.image import crop_box, inference_encoder
     from ..perception.extents import measure_extents
     from ..perception.segment import segment
+    from .candidates import iter_fallback_fitting, iter_fitting_with_refinements, raw_candidates
     from .clearance import heights_around
-    from .pipeline import (
-        iter_fallback_fitting,
-        iter_fitting_with_refinements,
-        raw_candidates,
-        roi_cavity,
-        roi_colours,
-        torch_threads,
-    )
+    from .perceive import roi_cavity, roi_colours, torch_threads
     from .stages import timed_stage
 
     if config.grasp == "oracle" or config.rois == "oracle":
@@ -231,8 +225,8 @@ def pick_reachable(
     """``reachable`` for ``ground_lazily``: the whole pick's IK plan and its clearance from the
     other objects of the grasp's ROI (``plan_pick``), as ``perceive`` checks it (always True
     when ``config.ik_filter`` is off). ``plans`` keeps the plans made, for ``relocate_choice``."""
+    from .candidates import GraspCandidate
     from .episode import plan_pick
-    from .pipeline import GraspCandidate
 
     def heights_of(grasp: object) -> HeightMap | None:
         """The clearance heights of the ROI that holds ``grasp`` (its fitting list grows lazily)."""
@@ -256,12 +250,8 @@ def relocate_choice(
     ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
     Costs one clearance check of the chosen pick when its approach is clear (and no IK plan,
     given the ``plans`` ``pick_reachable`` made)."""
-    from .pipeline import (
-        GraspCandidate,
-        fallback_with_refinements,
-        relocate_candidate,
-        with_refinements,
-    )
+    from .candidates import GraspCandidate, fallback_with_refinements, with_refinements
+    from .pipeline import relocate_candidate
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
     if not config.pick.clearance.relocate or roi.mask is None or roi.material is None or roi.raised is None:

@@ -67,7 +67,7 @@ class ClearanceConfig:
     enabled: bool = False
     # The same check as a preference instead of a filter: a region's grasp is the first that passes
     # the finger and IK checks *and* has a clear approach, else (none clear) the first that passes
-    # the others, as without the check (``pipeline._usable``). Never leaves a region without grasp.
+    # the others, as without the check (``grasp_checks.usable_grasps``). Never leaves a region without grasp.
     prefer: bool = False
     # After grounding, move the chosen grasp to a nearby spot of the same object when its approach
     # is blocked (``sim/relocate.py``; kept when no spot is clear). On by default: on the 105 dev

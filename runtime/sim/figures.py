@@ -176,7 +176,7 @@ def descent_sentence(gap: float, touching: tuple[str, ...]) -> str:
 
 
 def choice_error_sentence(error: str | None, verb: str, target: str, true_class_roi: int | None) -> str:
-    """Why a wrong choice was wrong (a ``pipeline.ChoiceError``, a str), from re-grounding the episode
+    """Why a wrong choice was wrong (a ``choice_errors.ChoiceError``, a str), from re-grounding the episode
     with every region named by the simulator's ground truth: a diagnostic, not robot knowledge."""
     target = target.replace("_", " ")
     named = "with every object named right (the simulator's ground truth; the robot does not have it)"

@@ -1,7 +1,8 @@
 """The open hand seen from above, and whether an object's section fits between its fingers.
 
-Shared by the grasp checks of the evaluation's and the robot's paths (``pipeline``, ``choose``)
-and by grasp refinement (``refine``), which proposes grasps and must check them the same way.
+Shared by the grasp checks of the evaluation's and the robot's paths (``grasp_checks``,
+``candidates``, ``choose``) and by grasp refinement (``refine``), which proposes grasps and must
+check them the same way.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ Cornell-trained networks (GR-ConvNet, GG-CNN) learned grasp centres, angles and 
 human-labelled rectangles for no particular hand, so on the CR3's hand (76 mm of free opening)
 they often put a sound grasp centre under an angle the hand cannot close across: a sponge or a
 bleach bottle taken across its long side, a cup or a mug across its whole mouth. Rejecting such a
-grasp (``pipeline.finger_check``) left the object without any grasp: on the dev scenes every
+grasp (``fingers.finger_check``) left the object without any grasp: on the dev scenes every
 ``no_grasp`` episode was a cup, mug, pitcher, bottle or sponge rejected this way.
 
 ``refine`` keeps the network's judgement of *where* to grasp and adapts the rest to the hand,

@@ -35,7 +35,7 @@ class RaisedPoints:
 
     @classmethod
     def of(cls, obs: Observation, table_z: float, tolerance: float) -> RaisedPoints:
-        """The raised pixels of ``obs`` (``pipeline.raised_mask``'s, from the heights alone)."""
+        """The raised pixels of ``obs`` (``perceive.raised_mask``'s, from the heights alone)."""
         if not tolerance >= 0:  # a pixel without depth must not count as raised (raised_mask's NaN rule)
             raise ValueError(f"tolerance must be >= 0 m, got {tolerance}")
         mask: BoolMask = obs.world_z() > table_z + tolerance  # NaN compares False: no depth, not raised
