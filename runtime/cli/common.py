@@ -152,6 +152,12 @@ _FORMS = "sum-tanh | normalized-product | specificity | required-veto | specific
 KbDirOpt = Annotated[Path | None, typer.Option(help="Folder of the baseline bundles (conceptnet/, direct-llm/).")]
 JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as JSON.", callback=checked_output_file)]
 MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_markdown_file)]
+SenseWeightOpt = Annotated[float | None, typer.Option(
+    "--sense-weight", min=0.0, max=1.0,
+    help="Read each object name of p(o|r) with its gloss: its text embedding is the unit mean of the name's and "
+         "the gloss's, the gloss weighing this much (grounding/senses.py; in evaluations every method reads the "
+         "shipped vocabulary's glosses). Default 0.5; 0 reads names alone and reproduces runs from before.",
+    show_default=False)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
 AffNormOpt = Annotated[str | None, typer.Option(help="E_aff scaling: none | verb-best (each verb's best KB object at -1; default: grounding/settings.py, docs/energy_weights.md).")]

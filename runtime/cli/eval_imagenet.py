@@ -16,6 +16,7 @@ from .common import (
     KbDirOpt,
     MarkdownOpt,
     NoCacheOpt,
+    SenseWeightOpt,
     TemperatureOpt,
     ThreadsOpt,
     fail,
@@ -39,6 +40,7 @@ def eval_imagenet(
     energy_form: EnergyFormOpt = None,
     no_cache: NoCacheOpt = False,
     threads: ThreadsOpt = None,
+    sense_weight: SenseWeightOpt = None,
     classes: Annotated[Path | None, typer.Option(help="Only draw episodes from these classes (file, one per line); "
                                                        "they are also the p(o|r) vocabulary.")] = None,
 ) -> None:
@@ -48,7 +50,7 @@ def eval_imagenet(
     from ..evaluation.methods import NoMethodToRunError
 
     given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
-                            beta, gamma)
+                            beta, gamma, sense_weight)
     try:
         report = evaluate_imagenet(labels, methods=given.methods, episodes=episodes, seed=seed, pool=given.pool,
                                    cache_dir=given.cache_dir, settings=given.settings, threads=threads)

@@ -56,6 +56,7 @@ def eval_sim(
     lookalikes: ep.LookalikesOpt = None,
     cavity_cue: ep.CavityCueOpt = None,
     hubness: ep.HubnessOpt = None,
+    sense_weight: ep.SenseWeightOpt = None,
     classifier: ep.ClassifierOpt = None,
     in_view: ep.InViewOpt = True,
 ) -> None:
@@ -73,7 +74,8 @@ def eval_sim(
     ep.check_labels(labels)
     ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
-                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness)
+                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness,
+                                  sense_weight=sense_weight)
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,

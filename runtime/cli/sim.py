@@ -51,6 +51,7 @@ def demo(
     lookalikes: ep.LookalikesOpt = None,
     cavity_cue: ep.CavityCueOpt = None,
     hubness: ep.HubnessOpt = None,
+    sense_weight: ep.SenseWeightOpt = None,
     beta: BetaOpt = None,
     gamma: GammaOpt = None,
 ) -> None:
@@ -113,7 +114,8 @@ def demo(
         spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)
         grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,
                                                                         lookalikes=lookalikes,
-                                                                        cavity_cue=cavity_cue, hubness=hubness),
+                                                                        cavity_cue=cavity_cue, hubness=hubness,
+                                  sense_weight=sense_weight),
                                     sim_vocabulary())
     except CueUnavailableError as exc:
         fail(str(exc))

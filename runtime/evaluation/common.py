@@ -187,6 +187,44 @@ def read_artifact_names(path: Path, what: str) -> list[str]:
         raise FileNotFoundError(f"{path}: {what} is missing{artifacts_hint(path)}") from None
 
 
+#: The vocabulary whose glosses every evaluated method reads ``p(o | r)``'s names in
+#: (``grounding/senses.py``): the objects file the default KBs are built from
+SENSES_FILE = "default_objects.txt"
+
+
+def read_senses(path: Path) -> dict[str, str]:
+    """``name -> gloss`` from a vocabulary file's ``name<TAB>gloss`` lines (names without a gloss,
+    blank and ``#`` lines are skipped); names normalized as the grounder's vocabulary is.
+
+    Raises ``OSError`` (the caller names the file)."""
+    from ...schemas.names import normalize_name
+
+    senses: dict[str, str] = {}
+    for line in path.read_text(encoding="utf-8").splitlines():
+        name, _, gloss = line.partition("\t")
+        if line.startswith("#") or not name.strip() or not gloss.strip():
+            continue
+        try:
+            key = normalize_name(name)
+        except ValueError:
+            key = name.strip().lower()
+        senses[key] = gloss.strip()
+    return senses
+
+
+def vocabulary_senses() -> dict[str, str]:
+    """The glosses of the shipped vocabulary (``SENSES_FILE``), which every method of an
+    evaluation reads its names in, so that perception is the same for all of them (as in the
+    paper's comparison); a missing file is a ``FileNotFoundError`` naming it."""
+    from ...paths import VOCAB_DIR
+
+    path = VOCAB_DIR / SENSES_FILE
+    try:
+        return read_senses(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: the vocabulary's glosses are missing{artifacts_hint(path)}") from None
+
+
 def emit_report(
     table: str,
     data: dict[str, Any],

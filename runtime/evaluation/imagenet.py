@@ -57,6 +57,7 @@ from .common import (
     read_artifact_names,
     reciprocal_rank,
     topk_accuracy,
+    vocabulary_senses,
 )
 from .methods import MethodSpec, default_methods, load_methods, method_settings
 
@@ -310,6 +311,8 @@ def evaluate_imagenet(
     sets, skipped_verbs = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
 
     runnable, skipped = load_methods(list(methods) if methods is not None else default_methods(kb))
+    # every method reads the names of p(o | r) in the vocabulary's senses (methods.build_grounders)
+    senses = vocabulary_senses() if settings.sense_weight > 0 else None
 
     class_ids = sorted({data.class_index[c] for c in (pool or data.classes)})
     image_ids = sorted(i for c in class_ids for i in data.class_images[c])
@@ -327,7 +330,7 @@ def evaluate_imagenet(
                 skipped.append(SkippedMethod(spec.name, f"{spec.bundle}/manifest.json: text encoder {space}, "
                                              f"image encoder {enc.id} embeds into {enc.text_encoder_id}"))
                 continue
-            grounder = Grounder(bundle, method_settings(spec, settings, vocabulary, alpha=0.0))
+            grounder = Grounder(bundle, method_settings(spec, settings, vocabulary, alpha=0.0), senses=senses)
             results.append(_score_method(spec, grounder, sets, emb, image_ids))
     if sets:
         results = reference_rows(sets) + results
@@ -339,6 +342,8 @@ def evaluate_imagenet(
         "energy_form": settings.energy_form or "bundle",
         "alpha": 0.0, "data": str(data.root), "multi_affording": list(MULTI_AFFORDING),
         "photos_per_class": "one (two for crane and cardigan)",
+        # only when on: results stored before the names were read in their sense read the same
+        **({"sense_weight": settings.sense_weight} if senses else {}),
     }
     return ImageNetReport(results, skipped, skipped_verbs, config)
 

@@ -8,14 +8,14 @@ skipped with the reason, never silently dropped.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ...paths import KB_DIR, artifacts_hint
 from ..grounding.settings import DEFAULT_BETA, DEFAULT_GAMMA, AffNorm, GroundingSettings
-from .common import SkippedMethod
+from .common import SkippedMethod, vocabulary_senses
 
 if TYPE_CHECKING:
     from ..grounding.grounder import Grounder
@@ -144,9 +144,15 @@ def build_grounders(
     vocabulary: Sequence[str],
     *,
     alpha: float | None = None,
+    senses: Mapping[str, str] | None = None,
 ) -> dict[str, Grounder]:
-    """One ``Grounder`` per method (see :func:`method_settings`)."""
+    """One ``Grounder`` per method (see :func:`method_settings`), every one reading the names of
+    ``p(o | r)`` in the same senses (``senses``; default: the shipped vocabulary's glosses,
+    ``common.vocabulary_senses``), whatever its bundle records: the methods differ in knowledge,
+    not in perception."""
     from ..grounding.grounder import Grounder
 
-    return {spec.name: Grounder(bundle, method_settings(spec, settings, vocabulary, alpha))
+    if senses is None and settings.sense_weight > 0:
+        senses = vocabulary_senses()
+    return {spec.name: Grounder(bundle, method_settings(spec, settings, vocabulary, alpha), senses=senses)
             for spec, bundle in runnable}

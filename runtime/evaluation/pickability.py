@@ -219,10 +219,10 @@ def evaluate_pickability(
     env_cfg = env_config or EnvConfig()
     chosen = check_assets(assets)
     specs = pickability_specs(chosen, layouts=layouts, seed=seed, env_config=env_cfg)
-    # the cavity cue and the hubness correction off: grounding with E_grasp alone never reads
+    # the cavity cue, the hubness correction and the senses off: grounding with E_grasp alone never reads
     # p(o | r), and with them the records' diagnostic hypothesis would differ from the published
     # runs' (made before them)
-    settings = settings or GroundingSettings(cavity_cue=False, hubness=False)
+    settings = settings or GroundingSettings(cavity_cue=False, hubness=False, sense_weight=0.0)
     spec_m = method or pickability_method()
     runnable, _ = load_methods([spec_m], text_space(None))  # raises NoMethodToRunError if it cannot run
     enc = default_encoder(cfg.torch_threads)

@@ -75,11 +75,13 @@ class Setting:
     classifier: str = "efficientnet-lite0"
     cavity_cue: bool = False
     hubness: bool = False  # grounding/hubness.py (every row before it was measured without)
+    senses: bool = False  # grounding/senses.py: names read with their glosses (rows before it: names alone)
 
     @property
-    def cues(self) -> tuple[bool, bool, bool, bool, bool]:
-        """What the setting's grounder weighs: the size, colour, look-alike and cavity cues and hubness."""
-        return self.size_cue, self.colour_cue, self.lookalike_cue, self.cavity_cue, self.hubness
+    def cues(self) -> tuple[bool, bool, bool, bool, bool, bool]:
+        """What the setting's grounder weighs: the size, colour, look-alike and cavity cues, hubness
+        and the names' senses."""
+        return self.size_cue, self.colour_cue, self.lookalike_cue, self.cavity_cue, self.hubness, self.senses
 
 
 _LITE1 = "efficientnet-lite1"
@@ -120,8 +122,13 @@ SETTINGS: tuple[Setting, ...] = (
             "to its 10 nearest ImageNet class names (CSLS; grounding/hubness.py)", "2x", "fit", classifier=_LITE1,
             hubness=True),
     Setting("Lite1, 2x fit + size + cavity cue + hubness", "Lite1, 2x, fit; the size and cavity cues and the "
-            "hubness correction: the default since 2026-12-06", "2x", "fit", size_cue=True, classifier=_LITE1,
+            "hubness correction: the default of 2026-12-06", "2x", "fit", size_cue=True, classifier=_LITE1,
             cavity_cue=True, hubness=True),
+    Setting("Lite1, 2x fit + senses", "Lite1, 2x, fit; each name read with its gloss, the unit mean of the two "
+            "embeddings (grounding/senses.py)", "2x", "fit", classifier=_LITE1, senses=True),
+    Setting("Lite1, 2x fit + size + cavity cue + hubness + senses", "Lite1, 2x, fit; the size and cavity cues, "
+            "the hubness correction and the names read with their glosses: the default since 2026-12-06 (later)",
+            "2x", "fit", size_cue=True, classifier=_LITE1, cavity_cue=True, hubness=True, senses=True),
 )
 
 
@@ -235,19 +242,22 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     from ...paths import KB_DIR
     from ..encoders.conse import ConSEImageEncoder, encode_with_classes
     from ..grounding.grounder import Grounder
-    from ..grounding.settings import GroundingSettings
+    from ..grounding.settings import DEFAULT_SENSE_WEIGHT, GroundingSettings
     from ..kb.bundle import load_bundle
     from ..kb.colours import COLOUR_TERMS
     from ..sim.assets import object_catalog
     from ..sim.pipeline import sim_vocabulary
+    from .common import vocabulary_senses
 
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)  # before the renders: fail fast
     assets = sorted(object_catalog())
     rendered = render_views(assets, views, seed, progress)
+    senses = vocabulary_senses()  # the glosses every evaluation reads names in (methods.build_grounders)
     grounders = {s.cues: Grounder(bundle, GroundingSettings(
         vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue,
-        cavity_cue=s.cavity_cue, hubness=s.hubness)) for s in SETTINGS}
-    grounder = grounders[(False, False, False, False, False)]
+        cavity_cue=s.cavity_cue, hubness=s.hubness, sense_weight=DEFAULT_SENSE_WEIGHT if s.senses else 0.0),
+        senses=senses) for s in SETTINGS}
+    grounder = grounders[(False, False, False, False, False, False)]
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in rendered])

@@ -611,7 +611,8 @@ def evaluate_sim(
                          # only when on: results stored before the cue existed read the same
                          **({"colour_cue": True} if grounder.colour_cue_active else {}),
                          **({"cavity_cue": True} if grounder.cavity_cue_active else {}),
-                         **({"hubness": True} if grounder.hubness_active else {})})
+                         **({"hubness": True} if grounder.hubness_active else {}),
+                         **({"sense_weight": grounder.settings.sense_weight} if grounder.senses_active else {})})
         open_vocab = sorted(v for v in labels.verbs if not grounder.knows_verb(v))
         if open_vocab:
             row.notes.append("verbs not in the KB, grounded with the open-vocabulary fallback: "

@@ -509,7 +509,9 @@ def evaluate_static(
                               "size_cue": grounders[spec_m.name].size_cue_active,
                               **({"colour_cue": True} if grounders[spec_m.name].colour_cue_active else {}),
                               **({"cavity_cue": True} if grounders[spec_m.name].cavity_cue_active else {}),
-                              **({"hubness": True} if grounders[spec_m.name].hubness_active else {})}))
+                              **({"hubness": True} if grounders[spec_m.name].hubness_active else {}),
+                              **({"sense_weight": grounders[spec_m.name].settings.sense_weight}
+                                 if grounders[spec_m.name].senses_active else {})}))
     config = {"labels": str(labels_path), "labels_sha256": sha256_file(labels_path), "seed": seed,
               "layouts": layouts, "max_pairs": max_pairs, "episodes": len(episodes),
               "pairs": len({(s.verb, s.object) for s in specs}), "backends": list(backends),

@@ -79,6 +79,7 @@ from .open_world import (
     map_request,
     parse_request,
 )
+from .senses import read_in_sense
 from .settings import AffMode, GroundingSettings
 from .size_cue import SizeCueUnavailableError, size_log_likelihood, size_table, with_size_cue
 
@@ -161,6 +162,8 @@ class Grounding:
     #: p(o | r) read each cosine less the name's hubness among the image encoder's labels
     #: (``hubness.py``)
     hubness_used: bool = False
+    #: p(o | r) read some vocabulary name with its gloss (``senses.py``)
+    senses_used: bool = False
 
     @property
     def abstained(self) -> bool:
@@ -200,6 +203,7 @@ class Grounding:
             **({"lookalike_cue_used": True} if self.lookalike_cue_used else {}),
             **({"cavity_cue_used": True} if self.cavity_cue_used else {}),
             **({"hubness_used": True} if self.hubness_used else {}),
+            **({"senses_used": True} if self.senses_used else {}),
             "nearest_verbs": [{"verb": v, "weight": w} for v, w in self.nearest_verbs],
             "chosen": self.chosen.index if self.chosen else None,
             "abstained": self.abstained,
@@ -219,7 +223,8 @@ class Grounding:
                  f"{', size cue' if self.size_cue_used else ''}{', colour cue' if self.colour_cue_used else ''}"
                  f"{', look-alike cue' if self.lookalike_cue_used else ''}"
                  f"{', cavity cue' if self.cavity_cue_used else ''}"
-                 f"{', hubness-corrected' if self.hubness_used else ''})"]
+                 f"{', hubness-corrected' if self.hubness_used else ''}"
+                 f"{', names in their sense' if self.senses_used else ''})"]
         if self.request is not None:
             lines.append(f"open vocabulary: {self.request.message()}")
         elif self.open_vocab_used:
@@ -374,6 +379,7 @@ class Grounder:
         top_k_hypotheses: int = 3,
         object_min_confidence: float | None = None,
         request_min_confidence: float | None = None,
+        senses: Mapping[str, str] | None = None,
     ) -> None:
         m = bundle.manifest
         self.settings = (settings or GroundingSettings()).with_form(m.energy.form)
@@ -402,7 +408,13 @@ class Grounder:
         obj_emb[known] = bundle.embeddings["object"][idx[known]]
         if self.objects_without_knowledge:
             obj_emb[~known] = self._encoder().embed(self.objects_without_knowledge)
-        self._obj_emb_t = np.ascontiguousarray(_unit_rows(obj_emb).T)  # [d, O]
+        # p(o | r)'s side of each name: read in its sense (grounding/senses.py); the open-world
+        # inference below compares names as names
+        glosses = [(senses.get(n) if senses is not None else bundle.index.gloss(n)) or None for n in names]
+        self.senses_read = sum(g is not None for g in glosses) if self.settings.sense_weight > 0 else 0
+        sensed = read_in_sense(obj_emb, glosses, self.settings.sense_weight,
+                               self._encoder() if self.senses_read else None)
+        self._obj_emb_t = np.ascontiguousarray(_unit_rows(sensed).T)  # [d, O]
         self._eaff = full[:, idx].astype(np.float32, copy=False)  # [V, O] (a copy: fancy indexing)
         self._eaff[:, ~known] = 0.0  # no path to a name the bundle does not know
         self._verb_query = _unit_rows(bundle.embeddings["verb_query"])  # [V, d]
@@ -424,7 +436,7 @@ class Grounder:
                 "the look-alike cue"))
         # a property check: only a bundle whose graph defines the property takes it (see cavity_cue.py)
         self._cavity_table = cavity_table(names, bundle) if self.settings.cavity_cue is not False else None
-        self._hubness = self._name_hubness(obj_emb)
+        self._hubness = self._name_hubness(sensed)
         self._open_world(bundle, form, names, known, idx, obj_emb, object_min_confidence, request_min_confidence)
         if self.settings.aff_norm == "verb-best":  # each verb by its best object in the bundle itself
             self._eaff = scale_negative(self._eaff, verb_best_divisor(full))
@@ -670,6 +682,11 @@ class Grounder:
         return self._hubness is not None
 
     @property
+    def senses_active(self) -> bool:
+        """Whether ``p(o | r)`` reads some vocabulary name with its gloss (``grounding/senses.py``)."""
+        return self.senses_read > 0
+
+    @property
     def temperature(self) -> float:
         return self.settings.temperature
 
@@ -807,6 +824,7 @@ class Grounder:
             notes=self._open_world_notes(plan, ranked), size_cue_used=size_cue_used,
             colour_cue_used=colour_cue_used, lookalike_cue_used=lookalike_cue_used, cavity_cue_used=cavity_cue_used,
             hubness_used=bool(usable) and self._hubness is not None,
+            senses_used=bool(usable) and self.senses_active,
         )
 
     def _open_world_notes(self, plan: _VerbPlan, ranked: Sequence[RankedROI]) -> list[str]:

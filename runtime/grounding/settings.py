@@ -41,6 +41,10 @@ DEFAULT_TEMPERATURE = 0.1
 #: unscaled, the best procedure scores 56.6 and its choice sits at the grid's edge):
 #: docs/energy_weights.md. Until 2026-12-04 the default was beta 3, gamma 0.5, unscaled.
 DEFAULT_AFF_NORM: AffNorm = "verb-best"
+#: How much of a glossed name's text embedding is its gloss's in p(o | r) (``grounding/senses.py``):
+#: an even mix, the first of the two weights tried on the testbed's renders (0.25, 0.5) and the
+#: better of them; 0 reads names alone, as every result stored before 2026-12-06's change.
+DEFAULT_SENSE_WEIGHT = 0.5
 DEFAULT_ALPHA = 1.0
 DEFAULT_BETA = 8.0
 DEFAULT_GAMMA = 1.0
@@ -103,12 +107,24 @@ class GroundingSettings(BaseModel):
     #: required (a bundle in another space is an error); ``False``: off (results stored before
     #: 2026-12-06's correction).
     hubness: bool | None = None
+    #: p(o | r) reads each vocabulary name with the gloss it was asked in: its text embedding is the
+    #: unit mean of the name's and the gloss's, the gloss weighing ``sense_weight``
+    #: (``grounding/senses.py``). Glosses come from the bundle's graph, or from the caller
+    #: (``Grounder(senses=...)``: the evaluations give every method the vocabulary's own, so that
+    #: perception is the same for all); names without one are read alone. 0: names alone.
+    sense_weight: float = Field(DEFAULT_SENSE_WEIGHT, ge=0.0, le=1.0, allow_inf_nan=False)
 
     @field_validator("temperature", mode="before")
     @classmethod
     def _default_temperature(cls, value: Any) -> Any:
         """``None`` (an option left unset) means the default temperature."""
         return DEFAULT_TEMPERATURE if value is None else value
+
+    @field_validator("sense_weight", mode="before")
+    @classmethod
+    def _default_sense_weight(cls, value: Any) -> Any:
+        """``None`` (an option left unset) means the default weight."""
+        return DEFAULT_SENSE_WEIGHT if value is None else value
 
     @field_validator("aff_norm", mode="before")
     @classmethod
@@ -159,4 +175,6 @@ class GroundingSettings(BaseModel):
             out["cavity_cue"] = self.cavity_cue
         if self.hubness is not None:
             out["hubness"] = self.hubness
+        if self.sense_weight > 0:  # only when on: results stored before the names' senses read the same
+            out["sense_weight"] = self.sense_weight
         return out
