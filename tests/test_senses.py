@@ -12,8 +12,9 @@ import pytest
 from craft_e.paths import KB_DIR
 from craft_e.runtime.evaluation.common import read_senses, vocabulary_senses
 from craft_e.runtime.evaluation.methods import build_grounders, load_methods, select_methods
+from craft_e.runtime.grounding import senses
 from craft_e.runtime.grounding.grounder import Grounder
-from craft_e.runtime.grounding.senses import read_in_sense
+from craft_e.runtime.grounding.senses import embed_glosses, read_in_sense
 from craft_e.runtime.grounding.settings import DEFAULT_SENSE_WEIGHT, GroundingSettings
 from craft_e.runtime.kb.bundle import load_bundle
 
@@ -37,22 +38,56 @@ def unit(v: np.ndarray) -> np.ndarray:
 def test_a_glossed_name_is_the_unit_mean_of_its_two_embeddings_and_others_stay() -> None:
     names = np.array([[2.0, 0.0, 0.0], [0.0, 3.0, 0.0]], dtype=np.float32)
     encoder = FixedEncoder({"a hand tool": [0.0, 0.0, 5.0]})
-    out = read_in_sense(names, ["a hand tool", None], 0.5, encoder)  # type: ignore[arg-type]
+    out = read_in_sense(names, ["a hand tool", None], 0.5, encoder.embed)
     np.testing.assert_allclose(out[0], unit(np.array([0.5, 0.0, 0.5])), atol=1e-6)
     np.testing.assert_array_equal(out[1], names[1])  # no gloss: the name as given
-    np.testing.assert_allclose(read_in_sense(names, ["a hand tool", None], 0.25, encoder)[0],  # type: ignore[arg-type]
+    np.testing.assert_allclose(read_in_sense(names, ["a hand tool", None], 0.25, encoder.embed)[0],
                                unit(np.array([0.75, 0.0, 0.25])), atol=1e-6)
-    assert encoder.calls == [["a hand tool"]]  # the same texts are embedded once per process
 
 
-def test_weight_zero_or_no_gloss_leaves_the_names_and_needs_no_encoder() -> None:
+def test_weight_zero_or_no_gloss_leaves_the_names_and_embeds_nothing() -> None:
     names = np.eye(2, dtype=np.float32)
     assert read_in_sense(names, ["x", "y"], 0.0, None) is names
     assert read_in_sense(names, [None, None], 0.5, None) is names
     with pytest.raises(ValueError, match="needs the bundle's text encoder"):
         read_in_sense(names, ["x", None], 0.5, None)
     with pytest.raises(ValueError, match="does not embed into the bundle's space"):
-        read_in_sense(names, ["x", None], 0.5, FixedEncoder({"x": [1.0, 0.0, 0.0]}))  # type: ignore[arg-type]
+        read_in_sense(names, ["x", None], 0.5, FixedEncoder({"x": [1.0, 0.0, 0.0]}).embed)
+
+
+def test_glosses_are_embedded_once_per_process_and_kept_on_disk_for_a_known_encoder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(senses, "_EMBEDDED", {})
+    encoder = FixedEncoder({"a hand tool": [0.0, 0.0, 5.0], "a fruit": [1.0, 0.0, 0.0]})
+    glosses = ["a hand tool", "a fruit"]
+    # a stand-in encoder: memoized per process, never written to disk
+    first = embed_glosses(glosses, lambda: encoder)  # type: ignore[arg-type,return-value]
+    again = embed_glosses(glosses, lambda: encoder)  # type: ignore[arg-type,return-value]
+    assert again is first and encoder.calls == [glosses]
+    assert not list(tmp_path.iterdir())
+    # an encoder known by its id and weights: computed once, then read from disk by a later process
+    known = ("minilm-l6-v2", "ab" * 32)
+    stored = embed_glosses(glosses, lambda: encoder, known, tmp_path)  # type: ignore[arg-type,return-value]
+    path = senses.senses_cache_path(tmp_path, *known, glosses)
+    assert path.is_file() and not list(tmp_path.glob("*.tmp"))
+    monkeypatch.setattr(senses, "_EMBEDDED", {})  # a new process
+
+    def no_encoder() -> FixedEncoder:
+        raise AssertionError("the cache should have answered")
+
+    np.testing.assert_array_equal(embed_glosses(glosses, no_encoder, known, tmp_path), stored)  # type: ignore[arg-type]
+    # another encoder's (or another list's) file is not trusted: recomputed
+    monkeypatch.setattr(senses, "_EMBEDDED", {})
+    other = ("minilm-l6-v2", "cd" * 32)
+    path.rename(senses.senses_cache_path(tmp_path, *other, glosses))
+    calls = len(encoder.calls)
+    embed_glosses(glosses, lambda: encoder, known, tmp_path)  # type: ignore[arg-type,return-value]
+    assert len(encoder.calls) == calls + 1
+    # a damaged file (a crash mid-write by an older version, a full disk) is recomputed, not an error
+    monkeypatch.setattr(senses, "_EMBEDDED", {})
+    path.write_bytes(path.read_bytes()[:40])
+    np.testing.assert_array_equal(embed_glosses(glosses, lambda: encoder, known, tmp_path), stored)  # type: ignore[arg-type,return-value]
+    assert len(encoder.calls) == calls + 2 and path.stat().st_size > 40
 
 
 def test_the_weight_is_validated_and_stored_only_when_on() -> None:

@@ -19,7 +19,8 @@ import contextlib
 import copy
 import hashlib
 import json
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -89,34 +90,52 @@ def load_class_embeddings(
     A cache file whose metadata does not match (another encoder or class list) is recomputed,
     never trusted: cosines across embedding spaces are meaningless.
     """
-    from safetensors.numpy import load_file, save_file
-
     names = imagenet_class_names()
     path = class_embeddings_path(cache_dir, text_id, text_sha256, names)
     meta = {"text_encoder": text_id, "weights_sha256": text_sha256,
             "classes_sha256": _class_list_sha256(names)}
-    if path.is_file():
-        from safetensors import safe_open
 
-        with safe_open(str(path), framework="numpy") as handle:
-            stored = handle.metadata() or {}
-        tensors = load_file(str(path))
-        emb = tensors.get("class_embeddings")
-        if json.loads(stored.get("key", "{}")) == meta and emb is not None and emb.shape[0] == len(names):
+    def encoder() -> Any:
+        return text_encoder if text_encoder is not None else load_text_encoder(text_id)
+
+    return cached_text_embeddings(path, meta, "class_embeddings", names, encoder, batched=True)
+
+
+def cached_text_embeddings(path: Path, meta: dict[str, str], tensor: str, texts: Sequence[str],
+                           encoder: Callable[[], Any], *, batched: bool) -> FloatArray:
+    """``[n, d]`` embeddings of ``texts`` read from the safetensors file ``path`` when its stored
+    ``meta`` matches (the encoder's identity and the texts' hash), else computed with
+    ``encoder()`` (called only then) and cached. A file that does not match is recomputed, never
+    trusted; the cache is best effort (an unwritable folder costs the next process the
+    computation, never the answer, and leaves no ``.tmp``). ``batched``: the encoder's batched
+    pass where it has one (its last bits depend on the batch: runtime caches only), else one
+    text per pass (each text's vector independent of the others)."""
+    from safetensors.numpy import load_file, save_file
+
+    if path.is_file():
+        from safetensors import SafetensorError, safe_open
+
+        try:
+            with safe_open(str(path), framework="numpy") as handle:
+                stored = json.loads((handle.metadata() or {}).get("key", "{}"))
+            emb = load_file(str(path)).get(tensor)
+        except (OSError, SafetensorError, ValueError):  # a damaged cache file: recomputed
+            stored, emb = None, None
+        if stored == meta and emb is not None and emb.shape[0] == len(texts):
             return np.asarray(emb, dtype=np.float32)
-    encoder = text_encoder if text_encoder is not None else load_text_encoder(text_id)
-    batched = getattr(encoder, "embed_batched", None)
-    vecs = batched(list(names)) if callable(batched) else encoder.embed(list(names))
-    emb = np.asarray(vecs, dtype=np.float32)  # [1000, d]
-    tmp = path.with_suffix(".tmp")
+    model = encoder()
+    in_batches = getattr(model, "embed_batched", None) if batched else None
+    vecs = in_batches(list(texts)) if callable(in_batches) else model.embed(list(texts))
+    emb = np.asarray(vecs, dtype=np.float32)  # [n, d]
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")  # processes filling one cache never share a file
     try:
-        cache_dir.mkdir(parents=True, exist_ok=True)
-        save_file({"class_embeddings": emb}, str(tmp), metadata={"key": json.dumps(meta, sort_keys=True)})
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_file({tensor: emb}, str(tmp), metadata={"key": json.dumps(meta, sort_keys=True)})
         tmp.replace(path)
     except OSError:
         # a cache, not an input: a read-only or full cache folder costs the next process this
-        # computation again, never the answer (every grounder of a MiniLM bundle reads these for
-        # its hubness correction, grounding/hubness.py, even where no image is encoded)
+        # computation again, never the answer (every grounder of a MiniLM bundle reads the class
+        # names for its hubness correction, grounding/hubness.py, even where no image is encoded)
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
     return emb

@@ -79,7 +79,7 @@ from .open_world import (
     map_request,
     parse_request,
 )
-from .senses import read_in_sense
+from .senses import embed_glosses, read_in_sense
 from .settings import AffMode, GroundingSettings
 from .size_cue import SizeCueUnavailableError, size_log_likelihood, size_table, with_size_cue
 
@@ -412,8 +412,7 @@ class Grounder:
         # inference below compares names as names
         glosses = [(senses.get(n) if senses is not None else bundle.index.gloss(n)) or None for n in names]
         self.senses_read = sum(g is not None for g in glosses) if self.settings.sense_weight > 0 else 0
-        sensed = read_in_sense(obj_emb, glosses, self.settings.sense_weight,
-                               self._encoder() if self.senses_read else None)
+        sensed = read_in_sense(obj_emb, glosses, self.settings.sense_weight, self._embed_glosses)
         self._obj_emb_t = np.ascontiguousarray(_unit_rows(sensed).T)  # [d, O]
         self._eaff = full[:, idx].astype(np.float32, copy=False)  # [V, O] (a copy: fancy indexing)
         self._eaff[:, ~known] = 0.0  # no path to a name the bundle does not know
@@ -531,6 +530,17 @@ class Grounder:
 
             self._text_encoder = load_text_encoder(self.bundle.manifest.text_encoder.id)
         return self._text_encoder
+
+    def _embed_glosses(self, glosses: list[str]) -> FloatArray:
+        """The glosses' embeddings (``senses.embed_glosses``): kept on disk when the bundle's text
+        encoder is the shipped MiniLM and no stand-in was passed, so a restart or a worker reads
+        them without loading the encoder."""
+        from ..encoders.text import MINILM_ID, MINILM_SHA256, MiniLMTextEncoder
+
+        enc = self.bundle.manifest.text_encoder
+        shipped = (enc.id, enc.weights_sha256) == (MINILM_ID, MINILM_SHA256) and (
+            self._text_encoder is None or isinstance(self._text_encoder, MiniLMTextEncoder))
+        return embed_glosses(glosses, self._encoder, (enc.id, enc.weights_sha256) if shipped else None)
 
     def _plan(self, verb: str) -> _VerbPlan:
         cached = self._plans.get(verb)
