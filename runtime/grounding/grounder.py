@@ -363,7 +363,9 @@ class Grounder:
     is the scene's object vocabulary for ``p(o | r)`` (default: every bundle object); names the bundle does not know
     are embedded with the text encoder and get ``E_aff = 0`` (no path, the neutral value of every
     form), listed in ``objects_without_knowledge``. ``open_vocab`` lets unknown verbs borrow
-    the E_aff rows of the KB verbs most similar in embedding space.
+    the E_aff rows of the KB verbs most similar in embedding space. ``senses`` (name -> gloss)
+    gives the glosses p(o | r) reads the names in (``senses.py``; default: the bundle's own, the
+    sense each object was asked in); the evaluations pass one vocabulary's to every method.
 
     Latency: ``ground`` is a handful of small matrix products. With OpenBLAS threads contending
     for busy cores they can take milliseconds; set ``OPENBLAS_NUM_THREADS=1`` (the ``craft`` CLI
