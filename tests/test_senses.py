@@ -155,3 +155,11 @@ def test_read_senses_skips_names_without_a_gloss_and_comments(tmp_path: Path) ->
     path.write_text("# a comment\ncup\ta small open drinking container\nknife\n\nRemote \t a remote control \n",
                     encoding="utf-8")
     assert read_senses(path) == {"cup": "a small open drinking container", "remote": "a remote control"}
+
+
+def test_a_missing_vocabulary_names_the_file_and_the_way_around_it(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("craft_e.paths.VOCAB_DIR", tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"default_objects\.txt: the vocabulary's glosses are missing.*"
+                                                r"--sense-weight 0"):
+        vocabulary_senses()

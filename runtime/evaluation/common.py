@@ -222,7 +222,8 @@ def vocabulary_senses() -> dict[str, str]:
     try:
         return read_senses(path)
     except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: the vocabulary's glosses are missing{artifacts_hint(path)}") from None
+        raise FileNotFoundError(f"{path}: the vocabulary's glosses are missing{artifacts_hint(path)}; restore it, "
+                                "or pass --sense-weight 0 to read the names alone") from None
 
 
 def emit_report(
