@@ -55,10 +55,10 @@ def test_bad_shapes_and_k_are_errors() -> None:
 def test_the_reference_is_conse_labels_for_its_text_space_only() -> None:
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
     enc = bundle.manifest.text_encoder
-    reference = reference_for(enc.id, enc.weights_sha256)
+    reference = reference_for(enc.id, enc.weights_sha256, 0.5)
     assert reference is not None and reference.shape == (1000, enc.dim)
-    assert reference_for("clip-vit-b32", enc.weights_sha256) is None
-    assert reference_for(enc.id, "0" * 64) is None
+    assert reference_for("clip-vit-b32", enc.weights_sha256, 0.5) is None
+    assert reference_for(enc.id, "0" * 64, 0.5) is None
 
 
 def test_the_grounder_applies_it_by_default_and_on_request_only() -> None:
@@ -117,6 +117,8 @@ def test_an_unwritable_encoder_cache_costs_a_recomputation_not_the_answer(tmp_pa
 
     blocked = tmp_path / "cache"
     blocked.write_text("not a folder", encoding="utf-8")
-    emb = load_class_embeddings(blocked / "encoders", text_encoder=Fake())
+    emb = load_class_embeddings(blocked / "encoders", text_encoder=Fake(), sense_weight=0.0)  # the names as given
     assert emb.shape == (1000, 4) and emb[1, 0] == 4.0
     assert blocked.read_text(encoding="utf-8") == "not a folder" and sorted(tmp_path.iterdir()) == [blocked]
+    sensed = load_class_embeddings(blocked / "encoders", text_encoder=Fake(), sense_weight=0.5)  # + the glosses
+    assert sensed.shape == (1000, 4) and sorted(tmp_path.iterdir()) == [blocked]

@@ -108,7 +108,7 @@ def demo(
     except BundleError as exc:
         fail(str(exc))
     method = bundle.manifest.kb_name
-    encoder = default_encoder(threads)
+    encoder = default_encoder(threads, sense_weight=sense_weight)
     try:
         weight_b, weight_g = energy_weights(beta, gamma)
         spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)

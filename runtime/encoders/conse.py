@@ -11,6 +11,15 @@ bundle's text space, so the paper's cosines against object names and verb querie
 unchanged. The 1000 class-name embeddings are computed once and cached as safetensors under
 ``artifacts/cache/encoders/`` (keyed by text encoder id, its weights hash and the class list
 hash), never pickled.
+
+Each class name is read in its sense, as the vocabulary's names are (``grounding/senses.py``): its
+embedding is the unit mean of the name's and its WordNet 3.0 gloss's (``imagenet_glosses.tsv``,
+``scripts/make_class_glosses.py``), the gloss weighing ``sense_weight``. A bare class name is
+ambiguous ("crane": the bird and the machine; "cup": a punch) and sits where MiniLM puts the word;
+its gloss says what the classifier's class is, in the words the vocabulary's glosses use. On the
+dev data (``docs/recognition.md``, "Class names read in their sense") it raised the renders'
+top-1 and the sim-dev choices. ``sense_weight`` 0 reads the bare names (every result stored
+before 2026-12-06, session 33).
 """
 
 from __future__ import annotations
@@ -37,6 +46,7 @@ from .text import (
     MINILM_SHA256,
     EncoderError,
     load_text_encoder,
+    sense_mean,
 )
 
 if TYPE_CHECKING:
@@ -45,6 +55,11 @@ if TYPE_CHECKING:
 CONSE_TOP_K = 10
 ENCODER_CACHE_DIR = CACHE_DIR / "encoders"
 CLASSES_FILE = "imagenet_classes.txt"
+GLOSSES_FILE = "imagenet_glosses.tsv"
+#: How much of a class name's embedding is its gloss's: the weight the vocabulary's names are read
+#: with by default (``grounding.settings.DEFAULT_SENSE_WEIGHT``, kept equal by a test), so both
+#: sides of ConSE's cosine read names the same way. ``GroundingSettings.sense_weight`` sets both.
+DEFAULT_CLASS_SENSE_WEIGHT = 0.5
 PREPROCESS = ("center", "fit")
 
 
@@ -69,6 +84,41 @@ def imagenet_class_index() -> dict[str, int]:
     return index
 
 
+@cache
+def imagenet_class_glosses() -> tuple[str, ...]:
+    """The 1000 classes' WordNet 3.0 glosses in logit order (``imagenet_glosses.tsv``: wnid,
+    class name, gloss; its names are checked against ``imagenet_classes.txt`` line by line)."""
+    text = resources.files("craft_e.runtime.encoders").joinpath(GLOSSES_FILE).read_text("utf-8")
+    return parse_class_glosses(text, imagenet_class_names())
+
+
+def parse_class_glosses(text: str, names: Sequence[str]) -> tuple[str, ...]:
+    """The glosses of ``imagenet_glosses.tsv``'s ``text``, one per class of ``names`` in order;
+    ``EncoderError`` naming the file, the line and the fix for any line that does not fit."""
+    glosses: list[str] = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        fields = line.split("\t")
+        if len(fields) != 3 or not fields[2].strip():
+            raise EncoderError(f"{GLOSSES_FILE} line {n}: expected 'wnid<TAB>class name<TAB>gloss'; "
+                               "regenerate it with scripts/make_class_glosses.py")
+        if n > len(names) or fields[1] != names[n - 1]:
+            expected = names[n - 1] if n <= len(names) else "no class"
+            raise EncoderError(f"{GLOSSES_FILE} line {n}: class {fields[1]!r}, {CLASSES_FILE} has "
+                               f"{expected!r} there; regenerate it with scripts/make_class_glosses.py")
+        glosses.append(fields[2].strip())
+    if len(glosses) != len(names):
+        raise EncoderError(f"{GLOSSES_FILE}: {len(glosses)} glosses, expected {len(names)}")
+    return tuple(glosses)
+
+
+def check_sense_weight(sense_weight: float) -> float:
+    """``sense_weight`` as a float in [0, 1], else ``ValueError`` naming it."""
+    w = float(sense_weight)
+    if not 0.0 <= w <= 1.0:  # also rejects NaN
+        raise ValueError(f"sense_weight must be in [0, 1], got {sense_weight}")
+    return w
+
+
 def _class_list_sha256(names: Sequence[str]) -> str:
     return hashlib.sha256("\n".join(names).encode()).hexdigest()
 
@@ -78,27 +128,46 @@ def class_embeddings_path(cache_dir: Path, text_id: str, text_sha256: str, names
     return cache_dir / f"imagenet1k-classes.{text_id}.{text_sha256[:12]}.{_class_list_sha256(names)[:12]}.safetensors"
 
 
+def class_glosses_path(cache_dir: Path, text_id: str, text_sha256: str, glosses: Sequence[str]) -> Path:
+    """Cache file of the class glosses' embeddings for one text encoder and one gloss list."""
+    return cache_dir / f"imagenet1k-glosses.{text_id}.{text_sha256[:12]}.{_class_list_sha256(glosses)[:12]}.safetensors"
+
+
 def load_class_embeddings(
     cache_dir: Path = ENCODER_CACHE_DIR,
     *,
     text_id: str = MINILM_ID,
     text_sha256: str = MINILM_SHA256,
     text_encoder: Any | None = None,
+    sense_weight: float = DEFAULT_CLASS_SENSE_WEIGHT,
 ) -> FloatArray:
-    """``[1000, d]`` unit embeddings of the class names, from the cache or computed and cached.
+    """``[1000, d]`` unit embeddings of the class names read in their sense (``sense_weight`` of
+    each is its gloss's; 0: the bare names), each part from the cache or computed and cached.
 
-    A cache file whose metadata does not match (another encoder or class list) is recomputed,
-    never trusted: cosines across embedding spaces are meaningless.
+    A cache file whose metadata does not match (another encoder, class or gloss list) is
+    recomputed, never trusted: cosines across embedding spaces are meaningless.
     """
+    w = check_sense_weight(sense_weight)
     names = imagenet_class_names()
     path = class_embeddings_path(cache_dir, text_id, text_sha256, names)
     meta = {"text_encoder": text_id, "weights_sha256": text_sha256,
             "classes_sha256": _class_list_sha256(names)}
+    loaded: list[Any] = []
 
-    def encoder() -> Any:
-        return text_encoder if text_encoder is not None else load_text_encoder(text_id)
+    def encoder() -> Any:  # loaded once even when both parts are computed
+        if not loaded:
+            loaded.append(text_encoder if text_encoder is not None else load_text_encoder(text_id))
+        return loaded[0]
 
-    return cached_text_embeddings(path, meta, "class_embeddings", names, encoder, batched=True)
+    emb = cached_text_embeddings(path, meta, "class_embeddings", names, encoder, batched=True)
+    if w == 0:
+        return emb
+    glosses = imagenet_class_glosses()
+    gloss_meta = {"text_encoder": text_id, "weights_sha256": text_sha256,
+                  "glosses_sha256": _class_list_sha256(glosses)}
+    gloss_emb = cached_text_embeddings(class_glosses_path(cache_dir, text_id, text_sha256, glosses),
+                                       gloss_meta, "gloss_embeddings", glosses, encoder, batched=True)
+    return sense_mean(emb, gloss_emb, w)
 
 
 def cached_text_embeddings(path: Path, meta: dict[str, str], tensor: str, texts: Sequence[str],
@@ -211,6 +280,7 @@ class ConSEImageEncoder:
         preprocess: str = "center",
         tta: int = 1,
         classifier: str | None = None,
+        sense_weight: float = DEFAULT_CLASS_SENSE_WEIGHT,
     ) -> None:
         import torch
 
@@ -232,11 +302,14 @@ class ConSEImageEncoder:
         self.resize = round(lite.resolution * 256 / 224)  # ``center``: short side, as 256 is for 224
         self.classifier: nn.Module = load_efficientnet(lite, weights)
         self.class_names = imagenet_class_names()
-        self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder)  # [1000, d]
+        self.sense_weight = check_sense_weight(sense_weight)
+        self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder,
+                                                      sense_weight=self.sense_weight)  # [1000, d]
         suffix = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
         self._fused_twin: ConSEImageEncoder | None = None
         self.id = (f"conse-k{top_k}{suffix}:{lite.name}@{lite.sha256[:12]}"
-                   f"+{MINILM_ID}@{MINILM_SHA256[:12]}")
+                   f"+{MINILM_ID}@{MINILM_SHA256[:12]}"
+                   + (f"+senses{self.sense_weight:g}" if self.sense_weight > 0 else ""))
 
     def class_probabilities(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> npt.NDArray[np.float32]:
         """ImageNet softmax ``[N, 1000]`` for RGB crops of any size.

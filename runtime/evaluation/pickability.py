@@ -225,7 +225,7 @@ def evaluate_pickability(
     settings = settings or GroundingSettings(cavity_cue=False, hubness=False, sense_weight=0.0)
     spec_m = method or pickability_method()
     runnable, _ = load_methods([spec_m], text_space(None))  # raises NoMethodToRunError if it cannot run
-    enc = default_encoder(cfg.torch_threads)
+    enc = default_encoder(cfg.torch_threads, sense_weight=settings.class_senses)
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     build = partial(worker_context, [m for m, _ in runnable], cfg.torch_threads, settings, None)
     records: list[dict[str, Any]] = []

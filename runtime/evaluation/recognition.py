@@ -76,12 +76,16 @@ class Setting:
     cavity_cue: bool = False
     hubness: bool = False  # grounding/hubness.py (every row before it was measured without)
     senses: bool = False  # grounding/senses.py: names read with their glosses (rows before it: names alone)
+    #: encoders/conse.py: ConSE's ImageNet class names read with their WordNet glosses too (rows
+    #: before it: the bare class names)
+    class_senses: bool = False
 
     @property
-    def cues(self) -> tuple[bool, bool, bool, bool, bool, bool]:
-        """What the setting's grounder weighs: the size, colour, look-alike and cavity cues, hubness
-        and the names' senses."""
-        return self.size_cue, self.colour_cue, self.lookalike_cue, self.cavity_cue, self.hubness, self.senses
+    def cues(self) -> tuple[bool, bool, bool, bool, bool, bool, bool]:
+        """What the setting's grounder weighs: the size, colour, look-alike and cavity cues, hubness,
+        the names' senses and the class names' (which the hubness reference follows)."""
+        return (self.size_cue, self.colour_cue, self.lookalike_cue, self.cavity_cue, self.hubness, self.senses,
+                self.class_senses)
 
 
 _LITE1 = "efficientnet-lite1"
@@ -127,8 +131,15 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("Lite1, 2x fit + senses", "Lite1, 2x, fit; each name read with its gloss, the unit mean of the two "
             "embeddings (grounding/senses.py)", "2x", "fit", classifier=_LITE1, senses=True),
     Setting("Lite1, 2x fit + size + cavity cue + hubness + senses", "Lite1, 2x, fit; the size and cavity cues, "
-            "the hubness correction and the names read with their glosses: the default since 2026-12-06 (later)",
+            "the hubness correction and the names read with their glosses: the default of 2026-12-06 (later)",
             "2x", "fit", size_cue=True, classifier=_LITE1, cavity_cue=True, hubness=True, senses=True),
+    Setting("Lite1, 2x fit + senses, both sides", "Lite1, 2x, fit; the names and ConSE's ImageNet class "
+            "names each read with their gloss (encoders/conse.py: the classes' WordNet glosses)", "2x", "fit",
+            classifier=_LITE1, senses=True, class_senses=True),
+    Setting("Lite1, 2x fit + size + cavity cue + hubness + senses, both sides", "Lite1, 2x, fit; the size "
+            "and cavity cues, the hubness correction and the names and class names read with their glosses: "
+            "the default since 2026-12-06 (session 33)", "2x", "fit", size_cue=True, classifier=_LITE1,
+            cavity_cue=True, hubness=True, senses=True, class_senses=True),
 )
 
 
@@ -240,7 +251,7 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     import torch
 
     from ...paths import KB_DIR
-    from ..encoders.conse import ConSEImageEncoder, encode_with_classes
+    from ..encoders.conse import DEFAULT_CLASS_SENSE_WEIGHT, ConSEImageEncoder, encode_with_classes
     from ..grounding.grounder import Grounder
     from ..grounding.settings import DEFAULT_SENSE_WEIGHT, GroundingSettings
     from ..kb.bundle import load_bundle
@@ -255,24 +266,27 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     senses = vocabulary_senses()  # the glosses every evaluation reads names in (methods.build_grounders)
     grounders = {s.cues: Grounder(bundle, GroundingSettings(
         vocabulary=list(sim_vocabulary()), size_cue=s.size_cue, colour_cue=s.colour_cue, lookalikes=s.lookalike_cue,
-        cavity_cue=s.cavity_cue, hubness=s.hubness, sense_weight=DEFAULT_SENSE_WEIGHT if s.senses else 0.0),
+        cavity_cue=s.cavity_cue, hubness=s.hubness, sense_weight=DEFAULT_SENSE_WEIGHT if s.senses else 0.0,
+        class_sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if s.class_senses else 0.0),
         senses=senses) for s in SETTINGS}
-    grounder = grounders[(False, False, False, False, False, False)]
+    grounder = grounders[(False,) * 7]
     extents = np.array([v.extents_m if v.extents_m is not None else (np.nan,) * 3 for v in rendered])
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in rendered])
     names = [v.name for v in rendered]
-    encoders: dict[tuple[str, str, int], ConSEImageEncoder] = {}
+    encoders: dict[tuple[str, str, int, bool], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
     per_asset: dict[str, dict[str, int]] = {}
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         for s in SETTINGS:
-            enc = encoders.get((s.classifier, s.preprocess, s.tta))
+            key = (s.classifier, s.preprocess, s.tta, s.class_senses)
+            enc = encoders.get(key)
             if enc is None:
-                enc = encoders[(s.classifier, s.preprocess, s.tta)] = ConSEImageEncoder(
-                    threads=threads, preprocess=s.preprocess, tta=s.tta, classifier=s.classifier)
+                enc = encoders[key] = ConSEImageEncoder(
+                    threads=threads, preprocess=s.preprocess, tta=s.tta, classifier=s.classifier,
+                    sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if s.class_senses else 0.0)
             start = time.perf_counter()
             classes: list[ClassTop | None] | None = None  # the fused view has no single classifier output
             if s.source == "fused":

@@ -319,14 +319,18 @@ def make_episode_specs(
 # encoder
 
 
-def default_encoder(threads: int = 1, classifier: str | None = None) -> ImageEncoder:
+def default_encoder(threads: int = 1, classifier: str | None = None,
+                    sense_weight: float | None = None) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
     (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md).
     ``classifier``: its ImageNet classifier (None: the default, EfficientNet-Lite1;
-    ``efficientnet-lite0`` reproduces runs from before 2026-12-04)."""
-    from ..encoders.conse import ConSEImageEncoder
+    ``efficientnet-lite0`` reproduces runs from before 2026-12-04). ``sense_weight``: how its
+    class names are read (``GroundingSettings.class_senses``, so that the grounders' hubness
+    reference is the same; None: the default)."""
+    from ..encoders.conse import DEFAULT_CLASS_SENSE_WEIGHT, ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier)
+    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier,
+                             sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if sense_weight is None else sense_weight)
 
 
 def text_space(encoder: ImageEncoder | None) -> str:
@@ -529,7 +533,7 @@ def worker_context(
     """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
     from ..sim.pipeline import sim_vocabulary
 
-    enc = default_encoder(threads, classifier)
+    enc = default_encoder(threads, classifier, settings.class_senses)
     runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
     return build_grounders(runnable, settings, sim_vocabulary()), enc
 
@@ -591,7 +595,7 @@ def evaluate_sim(
     settings = settings or GroundingSettings()
     method_specs = list(methods) if methods is not None else select_methods()
     runnable, skipped = load_methods(method_specs, text_space(encoder))
-    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier)
+    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier, settings.class_senses)
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:

@@ -461,7 +461,7 @@ class Grounder:
         if self.settings.hubness is False:
             return None
         enc = self.bundle.manifest.text_encoder
-        reference = reference_for(enc.id, enc.weights_sha256)
+        reference = reference_for(enc.id, enc.weights_sha256, self.settings.class_senses)
         if reference is None:
             if self.settings.hubness is True:
                 raise HubnessUnavailableError(

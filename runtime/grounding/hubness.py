@@ -67,15 +67,16 @@ def with_hubness(cosine: FloatArray, hub: FloatArray, weight: float = HUBNESS_WE
     return out
 
 
-def reference_for(text_encoder_id: str, weights_sha256: str) -> FloatArray | None:
+def reference_for(text_encoder_id: str, weights_sha256: str, sense_weight: float) -> FloatArray | None:
     """The labels of the image encoder that embeds into this text space (``[R, d]``), or None.
 
     Only ConSE embeds images into a sentence-embedding space here: for its text encoder (the
     same weights) the reference is its ImageNet class names (``encoders.conse.load_class_embeddings``:
-    cached, or computed once by the local text encoder)."""
+    cached, or computed once by the local text encoder), read in their sense at ``sense_weight``,
+    as the ConSE encoder of the same settings reads them."""
     from ..encoders.conse import load_class_embeddings
     from ..encoders.text import MINILM_ID, MINILM_SHA256
 
     if (text_encoder_id, weights_sha256) != (MINILM_ID, MINILM_SHA256):
         return None
-    return np.asarray(load_class_embeddings(), dtype=np.float32)
+    return np.asarray(load_class_embeddings(sense_weight=sense_weight), dtype=np.float32)

@@ -31,18 +31,13 @@ import numpy as np
 import numpy.typing as npt
 
 from ..encoders.base import TextEncoder
+from ..encoders.text import sense_mean
 
 FloatArray = npt.NDArray[np.float32]
 
 #: (the encoder: its (id, weights sha256) when cached on disk, else the object's id), the texts
 #: -> their embeddings: every grounder of a process reading the same senses embeds them once
 _EMBEDDED: dict[tuple[object, tuple[str, ...]], FloatArray] = {}
-
-
-def _unit(x: npt.NDArray[np.floating]) -> FloatArray:
-    x64 = np.asarray(x, dtype=np.float64)
-    out: FloatArray = (x64 / np.maximum(np.linalg.norm(x64, axis=1, keepdims=True), 1e-12)).astype(np.float32)
-    return out
 
 
 def _texts_sha256(texts: Sequence[str]) -> str:
@@ -93,6 +88,5 @@ def read_in_sense(names: FloatArray, glosses: Sequence[str | None], weight: floa
         raise ValueError(f"gloss embeddings are {tuple(gloss_emb.shape)}, expected [{len(rows)}, {names.shape[1]}]: "
                          "the text encoder does not embed into the bundle's space")
     out = np.array(names, dtype=np.float32, copy=True)
-    mixed = (1.0 - weight) * _unit(names[rows]).astype(np.float64) + weight * _unit(gloss_emb).astype(np.float64)
-    out[rows] = _unit(mixed)
+    out[rows] = sense_mean(names[rows], gloss_emb, weight)
     return out

@@ -113,6 +113,17 @@ class GroundingSettings(BaseModel):
     #: (``Grounder(senses=...)``: the evaluations give every method the vocabulary's own, so that
     #: perception is the same for all); names without one are read alone. 0: names alone.
     sense_weight: float = Field(DEFAULT_SENSE_WEIGHT, ge=0.0, le=1.0, allow_inf_nan=False)
+    #: How the image encoder's ImageNet class names are read: the same unit mean with each class's
+    #: WordNet gloss (``encoders/conse.py``), which the hubness correction's reference follows and
+    #: the evaluations build their ConSE encoder with. ``None`` (default): ``sense_weight``, so one
+    #: weight reads the names on both sides of ConSE's cosine; a number: that weight for the class
+    #: names alone (0: the bare class names, as every result stored before 2026-12-06, session 33).
+    class_sense_weight: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False)
+
+    @property
+    def class_senses(self) -> float:
+        """The weight the class names are read with (``class_sense_weight``, else ``sense_weight``)."""
+        return self.sense_weight if self.class_sense_weight is None else self.class_sense_weight
 
     @field_validator("temperature", mode="before")
     @classmethod
@@ -177,4 +188,6 @@ class GroundingSettings(BaseModel):
             out["hubness"] = self.hubness
         if self.sense_weight > 0:  # only when on: results stored before the names' senses read the same
             out["sense_weight"] = self.sense_weight
+        if self.class_senses > 0:  # likewise for the class names' (2026-12-06, session 33)
+            out["class_sense_weight"] = self.class_senses
         return out

@@ -808,10 +808,14 @@ def _document_bodies(app: FastAPI, models: Sequence[type[BaseModel]]) -> None:
 ImageEncoderChoice = Literal["conse", "none"]
 
 
-def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1) -> ImageEncoder | None:
-    """The image encoder for ``/ground_image`` (``none``: the endpoint answers 503)."""
+def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1,
+                       sense_weight: float | None = None) -> ImageEncoder | None:
+    """The image encoder for ``/ground_image`` (``none``: the endpoint answers 503).
+    ``sense_weight``: how ConSE reads its class names (the server's
+    ``GroundingSettings.class_senses``, which its hubness reference follows; None: the default)."""
     if name == "none":
         return None
-    from ..encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import DEFAULT_CLASS_SENSE_WEIGHT, ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads)
+    return ConSEImageEncoder(threads=threads,
+                             sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if sense_weight is None else sense_weight)
