@@ -154,9 +154,10 @@ JsonOpt = Annotated[Path | None, typer.Option("--json", help="Write results as J
 MarkdownOpt = Annotated[Path | None, typer.Option(help="Write the Markdown table.", callback=checked_markdown_file)]
 SenseWeightOpt = Annotated[float | None, typer.Option(
     "--sense-weight", min=0.0, max=1.0,
-    help="Read each object name of p(o|r) with its gloss: its text embedding is the unit mean of the name's and "
-         "the gloss's, the gloss weighing this much (grounding/senses.py; in evaluations every method reads the "
-         "shipped vocabulary's glosses). Default 0.5; 0 reads names alone and reproduces runs from before.",
+    help="Read each name on both sides of p(o|r) with its gloss: the object names' text embeddings, and the "
+         "ImageNet class names' ConSE embeds crops among, are the unit mean of the name's and the gloss's, the "
+         "gloss weighing this much (grounding/senses.py, encoders/conse.py; in evaluations every method reads the "
+         "shipped vocabulary's glosses). Default 0.5; 0 reads bare names and reproduces runs from before.",
     show_default=False)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]
