@@ -83,8 +83,12 @@ def main() -> None:
     if problems:
         sys.exit("nothing written:\n  " + "\n  ".join(problems[:20]))
     tmp = args.out.with_suffix(".tmp")
-    tmp.write_text("".join(rows), encoding="utf-8")
-    tmp.replace(args.out)
+    try:
+        tmp.write_text("".join(rows), encoding="utf-8")
+        tmp.replace(args.out)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        sys.exit(f"nothing written: {exc}")
     print(f"wrote {args.out} ({len(rows)} classes)")
 
 

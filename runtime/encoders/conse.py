@@ -280,7 +280,7 @@ class ConSEImageEncoder:
         preprocess: str = "center",
         tta: int = 1,
         classifier: str | None = None,
-        sense_weight: float = DEFAULT_CLASS_SENSE_WEIGHT,
+        sense_weight: float | None = None,
     ) -> None:
         import torch
 
@@ -302,7 +302,8 @@ class ConSEImageEncoder:
         self.resize = round(lite.resolution * 256 / 224)  # ``center``: short side, as 256 is for 224
         self.classifier: nn.Module = load_efficientnet(lite, weights)
         self.class_names = imagenet_class_names()
-        self.sense_weight = check_sense_weight(sense_weight)
+        # how the class names are read (None: the default, the vocabulary's own weight)
+        self.sense_weight = check_sense_weight(DEFAULT_CLASS_SENSE_WEIGHT if sense_weight is None else sense_weight)
         self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder,
                                                       sense_weight=self.sense_weight)  # [1000, d]
         suffix = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")

@@ -28,7 +28,6 @@ class EncoderError(RuntimeError):
     """Weights missing, corrupt, or not the ones a bundle was built with."""
 
 
-
 def _unit_rows(x: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.float32]:
     x64 = np.asarray(x, dtype=np.float64)
     out: npt.NDArray[np.float32] = (x64 / np.maximum(np.linalg.norm(x64, axis=1, keepdims=True), 1e-12)).astype(np.float32)
@@ -42,6 +41,7 @@ def sense_mean(names: npt.NDArray[np.floating[Any]], glosses: npt.NDArray[np.flo
     vocabulary's names (``grounding/senses.py``) and the ImageNet class names (``conse.py``)."""
     mixed = (1.0 - weight) * _unit_rows(names).astype(np.float64) + weight * _unit_rows(glosses).astype(np.float64)
     return _unit_rows(mixed)
+
 
 @dataclass(frozen=True)
 class TextEncoderSpec:

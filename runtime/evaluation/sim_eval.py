@@ -327,10 +327,9 @@ def default_encoder(threads: int = 1, classifier: str | None = None,
     ``efficientnet-lite0`` reproduces runs from before 2026-12-04). ``sense_weight``: how its
     class names are read (``GroundingSettings.class_senses``, so that the grounders' hubness
     reference is the same; None: the default)."""
-    from ..encoders.conse import DEFAULT_CLASS_SENSE_WEIGHT, ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier,
-                             sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if sense_weight is None else sense_weight)
+    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier, sense_weight=sense_weight)
 
 
 def text_space(encoder: ImageEncoder | None) -> str:

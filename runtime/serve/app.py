@@ -815,7 +815,6 @@ def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1,
     ``GroundingSettings.class_senses``, which its hubness reference follows; None: the default)."""
     if name == "none":
         return None
-    from ..encoders.conse import DEFAULT_CLASS_SENSE_WEIGHT, ConSEImageEncoder
+    from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads,
-                             sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if sense_weight is None else sense_weight)
+    return ConSEImageEncoder(threads=threads, sense_weight=sense_weight)
