@@ -109,8 +109,8 @@ def test_the_hubness_reference_follows_the_class_names_reading() -> None:
 
 
 def test_the_encoder_says_how_it_reads_its_classes() -> None:
-    sensed = conse.ConSEImageEncoder(threads=1)
-    bare = conse.ConSEImageEncoder(threads=1, sense_weight=0.0)
+    sensed = conse.ConSEImageEncoder(threads=1, temperature=1.0)
+    bare = conse.ConSEImageEncoder(threads=1, sense_weight=0.0, temperature=1.0)
     assert sensed.id == bare.id + "+senses0.5"  # an image-embedding cache keyed by id never mixes them
     np.testing.assert_array_equal(sensed.class_embeddings, load_class_embeddings(sense_weight=0.5))
     with pytest.raises(ValueError, match="sense_weight must be in"):

@@ -213,7 +213,7 @@ def test_classifier_option_reproduces_the_lite0_encoder(run_dir: Path, first_run
     lite0 = _run_cli(run_dir, "lite0", "--methods", "CRAFT-E", "--classifier", "efficientnet-lite0")
     # its class names read in their sense (the default since 2026-12-06; --sense-weight 0: the bare names)
     assert lite0["config"]["image_encoder"] == ("conse-k10-fit:efficientnet-lite0@579344248a93+minilm-l6-v2@53aa51172d14"
-                                                "+senses0.5")
+                                                "+senses0.5+t2")
     check_report(lite0)
     ep0, ep1 = lite0["episodes"][0], first_run["episodes"][0]
     assert (ep0["id"], ep0["distractors"]) == (ep1["id"], ep1["distractors"])

@@ -126,6 +126,30 @@ def test_eval_weights_reach_every_method(runtime_kbs: RuntimeKBs, tmp_path: Path
     assert {name: (s["beta"], s["gamma"]) for name, s in settings.items()} == weights
 
 
+@pytest.mark.parametrize(("flags", "suffix"), [([], "+senses0.5+t2"), (["--conse-temperature", "1"], "+senses0.5")])
+def test_conse_temperature_reaches_the_encoder(runtime_kbs: RuntimeKBs, tmp_path: Path, flags: list[str],
+                                               suffix: str) -> None:
+    """``--conse-temperature`` (default 2; 1: ConSE's own weights, every run from before) builds
+    the evaluation's encoder, whose id in the report says which."""
+    out = tmp_path / "r.json"
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"]}))
+    (tmp_path / "none").mkdir()
+    result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
+                                 "--kb-dir", str(tmp_path / "none"), "--episodes", "3", "--json", str(out),
+                                 "--no-cache", "--threads", "1", "--classes", str(RUNTIME_KB / "objects.txt"),
+                                 *flags])
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.read_text())["config"]["image_encoder"].endswith("+minilm-l6-v2@53aa51172d14" + suffix)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "inf", "nan"])
+@pytest.mark.parametrize("command", [["eval", "sim"], ["eval", "static"], ["eval", "imagenet"], ["sim", "demo"]])
+def test_a_bad_conse_temperature_is_a_usage_error(command: list[str], value: str) -> None:
+    result = runner.invoke(app, [*command, "--conse-temperature", value])
+    assert result.exit_code == 2 and "Invalid value for '--conse-temperature'" in result.output
+
+
 @pytest.mark.parametrize("weight", [["--beta", "-1"], ["--beta", "inf"], ["--gamma", "inf"]])
 @pytest.mark.parametrize("command", [["eval", "sim"], ["eval", "static"], ["eval", "imagenet"], ["sim", "demo"]])
 def test_a_negative_or_infinite_weight_is_a_usage_error(command: list[str], weight: list[str]) -> None:

@@ -44,7 +44,8 @@ def test_conse_classifies_shared_photos(conse: Any, name: str, expected: str) ->
 def test_conse_classifier_choice() -> None:
     """Lite0 stays selectable (the encoder of every result before Lite1): its own blocks, input
     size and id; an unknown name is refused with the choices."""
-    lite0 = ConSEImageEncoder(threads=1, preprocess="fit", classifier="efficientnet-lite0", sense_weight=0.0)
+    lite0 = ConSEImageEncoder(threads=1, preprocess="fit", classifier="efficientnet-lite0", sense_weight=0.0,
+                              temperature=1.0)
     assert isinstance(lite0.classifier, EfficientNetLite) and len(lite0.classifier._blocks) == 16
     assert (lite0.size, lite0.resize) == (224, 256)
     assert lite0.id == ("conse-k10-fit:efficientnet-lite0@579344248a93+minilm-l6-v2@53aa51172d14")

@@ -124,6 +124,13 @@ def checked_weight(value: float | None) -> float | None:
     return value
 
 
+def checked_conse_temperature(value: float | None) -> float | None:
+    """typer callback of ``--conse-temperature``: finite and > 0 (a softmax temperature)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"{value} is not a finite number > 0; give a temperature, e.g. 2 (1: ConSE's own)")
+    return value
+
+
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
@@ -157,7 +164,13 @@ SenseWeightOpt = Annotated[float | None, typer.Option(
     help="Read each name on both sides of p(o|r) with its gloss: the object names' text embeddings, and the "
          "ImageNet class names' ConSE embeds crops among, are the unit mean of the name's and the gloss's, the "
          "gloss weighing this much (grounding/senses.py, encoders/conse.py; in evaluations every method reads the "
-         "shipped vocabulary's glosses). Default 0.5; 0 reads bare names and reproduces runs from before.",
+         "shipped vocabulary's glosses). Default 0.5; 0 reads bare names and, with --conse-temperature 1, "
+         "reproduces runs from before.",
+    show_default=False)]
+ConseTemperatureOpt = Annotated[float | None, typer.Option(
+    "--conse-temperature", callback=checked_conse_temperature,
+    help="Softmax temperature of the image classifier's probabilities that weigh ConSE's top-10 ImageNet class "
+         "names (encoders/conse.py). Default 2; 1 is ConSE's own weighting and reproduces runs from before.",
     show_default=False)]
 TemperatureOpt = Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")]
 AffModeOpt = Annotated[str, typer.Option(help="E_aff over object hypotheses: expected | argmax.")]

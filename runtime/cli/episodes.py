@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol
 
 import typer
 
+from .common import ConseTemperatureOpt as ConseTemperatureOpt
 from .common import SenseWeightOpt as SenseWeightOpt
 from .common import checked_jobs, checked_markdown_file, checked_output_file, err, fail, note
 

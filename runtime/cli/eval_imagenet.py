@@ -10,6 +10,7 @@ import typer
 from .common import (
     AffModeOpt,
     BetaOpt,
+    ConseTemperatureOpt,
     EnergyFormOpt,
     GammaOpt,
     JsonOpt,
@@ -41,6 +42,7 @@ def eval_imagenet(
     no_cache: NoCacheOpt = False,
     threads: ThreadsOpt = None,
     sense_weight: SenseWeightOpt = None,
+    conse_temperature: ConseTemperatureOpt = None,
     classes: Annotated[Path | None, typer.Option(help="Only draw episodes from these classes (file, one per line); "
                                                        "they are also the p(o|r) vocabulary.")] = None,
 ) -> None:
@@ -50,7 +52,7 @@ def eval_imagenet(
     from ..evaluation.methods import NoMethodToRunError
 
     given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
-                            beta, gamma, sense_weight)
+                            beta, gamma, sense_weight, conse_temperature)
     try:
         report = evaluate_imagenet(labels, methods=given.methods, episodes=episodes, seed=seed, pool=given.pool,
                                    cache_dir=given.cache_dir, settings=given.settings, threads=threads)

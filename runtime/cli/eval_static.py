@@ -47,6 +47,7 @@ def eval_static(
     cavity_cue: ep.CavityCueOpt = None,
     hubness: ep.HubnessOpt = None,
     sense_weight: ep.SenseWeightOpt = None,
+    conse_temperature: ep.ConseTemperatureOpt = None,
     classifier: ep.ClassifierOpt = None,
     in_view: ep.InViewOpt = True,
 ) -> None:
@@ -69,7 +70,7 @@ def eval_static(
     ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
                                   colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness,
-                                  sense_weight=sense_weight)
+                                  sense_weight=sense_weight, conse_temperature=conse_temperature)
     ep.run_with_progress(
         lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,

@@ -35,6 +35,7 @@ def protocol_inputs(
     kb: Path | None, kb_dir: Path | None, classes: Path | None, no_cache: bool,
     temperature: float | None, aff_mode: str, energy_form: str | None,
     beta: float | None = None, gamma: float | None = None, sense_weight: float | None = None,
+    conse_temperature: float | None = None,
 ) -> ProtocolInputs:
     """Resolve the shared options (a bad value exits 2 naming it)."""
     from ...paths import KB_DIR
@@ -44,7 +45,7 @@ def protocol_inputs(
 
     check_named_bundles(kb, kb_dir)
     settings = grounding_settings(temperature=temperature, aff_mode=aff_mode, energy_form=energy_form,
-                                  sense_weight=sense_weight)
+                                  sense_weight=sense_weight, conse_temperature=conse_temperature)
     pool = read_names(classes, "classes file") if classes is not None else None
     return ProtocolInputs(default_methods(kb, kb_dir or KB_DIR, beta=beta, gamma=gamma), pool,
                           None if no_cache else ENCODER_CACHE_DIR, settings)

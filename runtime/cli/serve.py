@@ -72,7 +72,7 @@ def serve_cmd(
         fail(f"--log-level {log_level!r}: use critical, error, warning, info or debug")
     try:
         encoder = load_image_encoder("conse" if image_encoder == "conse" else "none", threads=threads,
-                                     sense_weight=settings.class_senses)
+                                     sense_weight=settings.class_senses, temperature=settings.conse_temperature)
         app = create_app(kb, image_encoder=encoder, max_rois=max_rois, settings=settings,
                          trusted_keys=[str(k) for k in trusted_key] if trusted_key else None,
                          max_body_bytes=max_body_bytes)

@@ -52,6 +52,7 @@ def demo(
     cavity_cue: ep.CavityCueOpt = None,
     hubness: ep.HubnessOpt = None,
     sense_weight: ep.SenseWeightOpt = None,
+    conse_temperature: ep.ConseTemperatureOpt = None,
     beta: BetaOpt = None,
     gamma: GammaOpt = None,
 ) -> None:
@@ -108,14 +109,17 @@ def demo(
     except BundleError as exc:
         fail(str(exc))
     method = bundle.manifest.kb_name
-    encoder = default_encoder(threads, sense_weight=sense_weight)
+    try:
+        encoder = default_encoder(threads, sense_weight=sense_weight, temperature=conse_temperature)
+    except ValueError as exc:
+        fail(f"--conse-temperature: {exc}")
     try:
         weight_b, weight_g = energy_weights(beta, gamma)
         spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)
         grounders = build_grounders([(spec_m, bundle)], GroundingSettings(size_cue=size_cue, colour_cue=colour_cue,
                                                                         lookalikes=lookalikes,
                                                                         cavity_cue=cavity_cue, hubness=hubness,
-                                  sense_weight=sense_weight),
+                                  sense_weight=sense_weight, conse_temperature=conse_temperature),
                                     sim_vocabulary())
     except CueUnavailableError as exc:
         fail(str(exc))

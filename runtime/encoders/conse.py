@@ -20,6 +20,14 @@ its gloss says what the classifier's class is, in the words the vocabulary's glo
 dev data (``docs/recognition.md``, "Class names read in their sense") it raised the renders'
 top-1 and the sim-dev choices. ``sense_weight`` 0 reads the bare names (every result stored
 before 2026-12-06, session 33).
+
+ConSE's weights are the classifier's probabilities at a softmax temperature (``temperature``,
+default 2: ``p(y | x) ** (1 / T)`` renormalised over the top-k, i.e. ``softmax(logits / T)``
+restricted to them). On rendered and cluttered objects, outside ImageNet's photographs, the
+classifier often puts most of its mass on one look-alike class ("ballpoint" for a knife); at
+T = 2 the runner-up classes, which often name the object's kind, weigh more in the mean. Chosen
+on the dev data (``docs/recognition.md``, "ConSE's weights at temperature 2"); ``temperature`` 1
+is ConSE's own weighting (every result stored before 2026-12-06, session 34).
 """
 
 from __future__ import annotations
@@ -60,6 +68,9 @@ GLOSSES_FILE = "imagenet_glosses.tsv"
 #: with by default (``grounding.settings.DEFAULT_SENSE_WEIGHT``, kept equal by a test), so both
 #: sides of ConSE's cosine read names the same way. ``GroundingSettings.sense_weight`` sets both.
 DEFAULT_CLASS_SENSE_WEIGHT = 0.5
+#: The classifier's softmax temperature for ConSE's weights (module docstring): 1 is the paper's
+#: ConSE; 2 chosen on the dev renders, the sim-dev scenes and the ImageNet dev labels.
+DEFAULT_CONSE_TEMPERATURE = 2.0
 PREPROCESS = ("center", "fit")
 
 
@@ -117,6 +128,14 @@ def check_sense_weight(sense_weight: float) -> float:
     if not 0.0 <= w <= 1.0:  # also rejects NaN
         raise ValueError(f"sense_weight must be in [0, 1], got {sense_weight}")
     return w
+
+
+def check_temperature(temperature: float) -> float:
+    """``temperature`` as a float, or ``ValueError`` naming it: finite and > 0."""
+    value = float(temperature)
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"temperature must be a finite number > 0, got {temperature!r}")
+    return value
 
 
 def _class_list_sha256(names: Sequence[str]) -> str:
@@ -210,15 +229,20 @@ def cached_text_embeddings(path: Path, meta: dict[str, str], tensor: str, texts:
     return emb
 
 
-def conse_embed(probs: npt.NDArray[np.floating[Any]], class_emb: FloatArray, top_k: int = CONSE_TOP_K) -> FloatArray:
+def conse_embed(probs: npt.NDArray[np.floating[Any]], class_emb: FloatArray, top_k: int = CONSE_TOP_K,
+                temperature: float = 1.0) -> FloatArray:
     """ConSE: probability-weighted mean of the top-k class embeddings, renormalized.
 
-    ``probs`` ``[N, C]``, ``class_emb`` ``[C, d]`` -> ``[N, d]`` unit vectors.
+    ``probs`` ``[N, C]``, ``class_emb`` ``[C, d]`` -> ``[N, d]`` unit vectors. ``temperature``
+    ``T``: the weights are ``probs ** (1 / T)`` over the top-k (the classifier's softmax at
+    ``T``, renormalised there; the top-k are the same classes at any ``T``); 1 is ConSE's own.
     """
     p = np.asarray(probs, dtype=np.float64)  # [N, C]
     k = min(top_k, p.shape[1])
     idx = np.argpartition(-p, k - 1, axis=1)[:, :k]  # [N, k] top-k classes (unordered)
     w = np.take_along_axis(p, idx, axis=1)  # [N, k]
+    if temperature != 1.0:  # at 1, no power at all: the same bits as before the temperature
+        w = w ** (1.0 / check_temperature(temperature))
     w = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-12)
     emb = np.einsum("nk,nkd->nd", w, class_emb.astype(np.float64)[idx])  # [N, d]
     emb /= np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
@@ -281,6 +305,7 @@ class ConSEImageEncoder:
         tta: int = 1,
         classifier: str | None = None,
         sense_weight: float | None = None,
+        temperature: float | None = None,
     ) -> None:
         import torch
 
@@ -306,11 +331,14 @@ class ConSEImageEncoder:
         self.sense_weight = check_sense_weight(DEFAULT_CLASS_SENSE_WEIGHT if sense_weight is None else sense_weight)
         self.class_embeddings = load_class_embeddings(cache_dir, text_encoder=text_encoder,
                                                       sense_weight=self.sense_weight)  # [1000, d]
+        # the classifier's softmax temperature for ConSE's weights (None: the default)
+        self.temperature = check_temperature(DEFAULT_CONSE_TEMPERATURE if temperature is None else temperature)
         suffix = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
         self._fused_twin: ConSEImageEncoder | None = None
         self.id = (f"conse-k{top_k}{suffix}:{lite.name}@{lite.sha256[:12]}"
                    f"+{MINILM_ID}@{MINILM_SHA256[:12]}"
-                   + (f"+senses{self.sense_weight:g}" if self.sense_weight > 0 else ""))
+                   + (f"+senses{self.sense_weight:g}" if self.sense_weight > 0 else "")
+                   + (f"+t{self.temperature:g}" if self.temperature != 1.0 else ""))
 
     def class_probabilities(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> npt.NDArray[np.float32]:
         """ImageNet softmax ``[N, 1000]`` for RGB crops of any size.
@@ -369,7 +397,7 @@ class ConSEImageEncoder:
 
     def embed_probabilities(self, probs: npt.NDArray[np.floating[Any]]) -> FloatArray:
         """ConSE embeddings ``[N, d]`` from precomputed class probabilities ``[N, 1000]``."""
-        return conse_embed(probs, self.class_embeddings, self.top_k)
+        return conse_embed(probs, self.class_embeddings, self.top_k, self.temperature)
 
     def embed_images(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> FloatArray:
         """``[N, 384]`` unit vectors in MiniLM space for ``N`` RGB uint8 crops."""

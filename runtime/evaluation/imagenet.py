@@ -251,10 +251,10 @@ class ImageNetReport:
         return head + markdown_table(self.results, self.skipped, COLUMNS)
 
 
-def _default_encoder(threads: int | None, sense_weight: float) -> Any:
+def _default_encoder(threads: int | None, sense_weight: float, temperature: float) -> Any:
     from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, sense_weight=sense_weight)
+    return ConSEImageEncoder(threads=threads, sense_weight=sense_weight, temperature=temperature)
 
 
 def embed_dataset_images(
@@ -319,7 +319,7 @@ def evaluate_imagenet(
     encoder_id = None
     results: list[MethodResult] = []
     if runnable and sets:
-        enc = encoder if encoder is not None else _default_encoder(threads, settings.class_senses)
+        enc = encoder if encoder is not None else _default_encoder(threads, settings.class_senses, settings.conse_temperature)
         encoder_id = enc.id
         emb_rows = embed_dataset_images(data, image_ids, enc, cache_dir)  # [n, d]
         emb = np.zeros((len(data.images), emb_rows.shape[1]), dtype=np.float32)  # [all images, d]

@@ -219,13 +219,13 @@ def evaluate_pickability(
     env_cfg = env_config or EnvConfig()
     chosen = check_assets(assets)
     specs = pickability_specs(chosen, layouts=layouts, seed=seed, env_config=env_cfg)
-    # the cavity cue, the hubness correction and the senses off: grounding with E_grasp alone never reads
-    # p(o | r), and with them the records' diagnostic hypothesis would differ from the published
-    # runs' (made before them)
-    settings = settings or GroundingSettings(cavity_cue=False, hubness=False, sense_weight=0.0)
+    # the cavity cue, the hubness correction, the senses and ConSE's temperature off: grounding with
+    # E_grasp alone never reads p(o | r), and with them the records' diagnostic hypothesis would
+    # differ from the published runs' (made before them)
+    settings = settings or GroundingSettings(cavity_cue=False, hubness=False, sense_weight=0.0, conse_temperature=1.0)
     spec_m = method or pickability_method()
     runnable, _ = load_methods([spec_m], text_space(None))  # raises NoMethodToRunError if it cannot run
-    enc = default_encoder(cfg.torch_threads, sense_weight=settings.class_senses)
+    enc = default_encoder(cfg.torch_threads, sense_weight=settings.class_senses, temperature=settings.conse_temperature)
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     build = partial(worker_context, [m for m, _ in runnable], cfg.torch_threads, settings, None)
     records: list[dict[str, Any]] = []

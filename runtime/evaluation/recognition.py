@@ -79,6 +79,8 @@ class Setting:
     #: encoders/conse.py: ConSE's ImageNet class names read with their WordNet glosses too (rows
     #: before it: the bare class names)
     class_senses: bool = False
+    #: encoders/conse.py: the classifier's softmax temperature for ConSE's weights (rows before it: 1)
+    conse_temperature: float = 1.0
 
     @property
     def cues(self) -> tuple[bool, bool, bool, bool, bool, bool, bool]:
@@ -138,8 +140,16 @@ SETTINGS: tuple[Setting, ...] = (
             classifier=_LITE1, senses=True, class_senses=True),
     Setting("Lite1, 2x fit + size + cavity cue + hubness + senses, both sides", "Lite1, 2x, fit; the size "
             "and cavity cues, the hubness correction and the names and class names read with their glosses: "
-            "the default since 2026-12-06 (session 33)", "2x", "fit", size_cue=True, classifier=_LITE1,
+            "the default of 2026-12-06 (session 33)", "2x", "fit", size_cue=True, classifier=_LITE1,
             cavity_cue=True, hubness=True, senses=True, class_senses=True),
+    Setting("Lite1, 2x fit + senses, both sides + ConSE T=2", "Lite1, 2x, fit; the names and class names read "
+            "with their glosses, ConSE's weights the classifier's softmax at temperature 2 (encoders/conse.py)",
+            "2x", "fit", classifier=_LITE1, senses=True, class_senses=True, conse_temperature=2.0),
+    Setting("Lite1, 2x fit + size + cavity cue + hubness + senses, both sides + ConSE T=2", "Lite1, 2x, fit; "
+            "the size and cavity cues, the hubness correction, the names and class names read with their "
+            "glosses and ConSE's weights at temperature 2: the default since 2026-12-06 (session 34)", "2x", "fit",
+            size_cue=True, classifier=_LITE1, cavity_cue=True, hubness=True, senses=True, class_senses=True,
+            conse_temperature=2.0),
 )
 
 
@@ -274,19 +284,20 @@ def evaluate_recognition(views: int = 3, seed: int = 0, *, threads: int = 1,
     colours = np.array([v.colours if v.colours is not None else (np.nan,) * len(COLOUR_TERMS) for v in rendered])
     cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in rendered])
     names = [v.name for v in rendered]
-    encoders: dict[tuple[str, str, int, bool], ConSEImageEncoder] = {}
+    encoders: dict[tuple[str, str, int, bool, float], ConSEImageEncoder] = {}
     rows: list[dict[str, Any]] = []
     per_asset: dict[str, dict[str, int]] = {}
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         for s in SETTINGS:
-            key = (s.classifier, s.preprocess, s.tta, s.class_senses)
+            key = (s.classifier, s.preprocess, s.tta, s.class_senses, s.conse_temperature)
             enc = encoders.get(key)
             if enc is None:
                 enc = encoders[key] = ConSEImageEncoder(
                     threads=threads, preprocess=s.preprocess, tta=s.tta, classifier=s.classifier,
-                    sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if s.class_senses else 0.0)
+                    sense_weight=DEFAULT_CLASS_SENSE_WEIGHT if s.class_senses else 0.0,
+                    temperature=s.conse_temperature)
             start = time.perf_counter()
             classes: list[ClassTop | None] | None = None  # the fused view has no single classifier output
             if s.source == "fused":

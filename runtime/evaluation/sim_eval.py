@@ -320,16 +320,18 @@ def make_episode_specs(
 
 
 def default_encoder(threads: int = 1, classifier: str | None = None,
-                    sense_weight: float | None = None) -> ImageEncoder:
+                    sense_weight: float | None = None, temperature: float | None = None) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
     (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md).
     ``classifier``: its ImageNet classifier (None: the default, EfficientNet-Lite1;
     ``efficientnet-lite0`` reproduces runs from before 2026-12-04). ``sense_weight``: how its
     class names are read (``GroundingSettings.class_senses``, so that the grounders' hubness
-    reference is the same; None: the default)."""
+    reference is the same; None: the default). ``temperature``: the classifier's softmax
+    temperature for ConSE's weights (``GroundingSettings.conse_temperature``; None: the default)."""
     from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier, sense_weight=sense_weight)
+    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier, sense_weight=sense_weight,
+                             temperature=temperature)
 
 
 def text_space(encoder: ImageEncoder | None) -> str:
@@ -532,7 +534,7 @@ def worker_context(
     """What a ``--jobs`` worker builds once: the grounders and the default image encoder."""
     from ..sim.pipeline import sim_vocabulary
 
-    enc = default_encoder(threads, classifier, settings.class_senses)
+    enc = default_encoder(threads, classifier, settings.class_senses, settings.conse_temperature)
     runnable, _ = load_methods(runnable_specs, enc.text_encoder_id)
     return build_grounders(runnable, settings, sim_vocabulary()), enc
 
@@ -594,7 +596,8 @@ def evaluate_sim(
     settings = settings or GroundingSettings()
     method_specs = list(methods) if methods is not None else select_methods()
     runnable, skipped = load_methods(method_specs, text_space(encoder))
-    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier, settings.class_senses)
+    enc = encoder if encoder is not None else default_encoder(cfg.torch_threads, classifier, settings.class_senses,
+                                                                 settings.conse_temperature)
     grounders = build_grounders(runnable, settings, sim_vocabulary())
     records: list[dict[str, Any]] = []
     if grounders:

@@ -477,7 +477,8 @@ def evaluate_static(
     settings = settings or GroundingSettings()
     runnable, skipped = load_methods(list(methods) if methods is not None else select_methods(),
                                      text_space(encoder))
-    enc = encoder if encoder is not None else default_encoder(threads, classifier, settings.class_senses)
+    enc = encoder if encoder is not None else default_encoder(threads, classifier, settings.class_senses,
+                                                              settings.conse_temperature)
     from ..sim.pipeline import sim_vocabulary
 
     grounders = build_grounders(runnable, settings, sim_vocabulary())

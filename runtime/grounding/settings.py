@@ -29,6 +29,11 @@ AFF_NORMS: tuple[AffNorm, ...] = get_args(AffNorm)
 #: such as the testbed's renders, never on the benchmark's.)
 DEFAULT_TEMPERATURE = 0.1
 
+#: The image classifier's softmax temperature for ConSE's weights (``encoders/conse.py``, whose
+#: ``DEFAULT_CONSE_TEMPERATURE`` a test keeps equal): 2, chosen on the dev renders, the sim-dev
+#: scenes and the ImageNet dev labels (``docs/recognition.md``); 1 is ConSE's own weighting.
+DEFAULT_CONSE_TEMPERATURE = 2.0
+
 #: The energy weights (paper eq. 1) and E_aff's scaling. The paper sets alpha = beta = gamma = 1
 #: for its sum-tanh E_aff, whose affording objects saturate at -1. Our KB's E_aff (the normalized
 #: product, issue 9) rarely reaches -1, and how far below it a verb's best object stays depends on
@@ -119,6 +124,11 @@ class GroundingSettings(BaseModel):
     #: weight reads the names on both sides of ConSE's cosine; a number: that weight for the class
     #: names alone (0: the bare class names, as every result stored before 2026-12-06, session 33).
     class_sense_weight: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False)
+    #: The softmax temperature of the image classifier's probabilities that weigh ConSE's mean of
+    #: class names (``encoders/conse.py``), which the evaluations, ``craft sim demo`` and ``craft
+    #: serve`` build their encoder with. 1: ConSE's own weights (every result stored before
+    #: 2026-12-06, session 34). It shapes the image embedding, not the grounder.
+    conse_temperature: float = Field(DEFAULT_CONSE_TEMPERATURE, gt=0.0, allow_inf_nan=False)
 
     @property
     def class_senses(self) -> float:
@@ -136,6 +146,12 @@ class GroundingSettings(BaseModel):
     def _default_sense_weight(cls, value: Any) -> Any:
         """``None`` (an option left unset) means the default weight."""
         return DEFAULT_SENSE_WEIGHT if value is None else value
+
+    @field_validator("conse_temperature", mode="before")
+    @classmethod
+    def _default_conse_temperature(cls, value: Any) -> Any:
+        """``None`` (an option left unset) means the default temperature."""
+        return DEFAULT_CONSE_TEMPERATURE if value is None else value
 
     @field_validator("aff_norm", mode="before")
     @classmethod
@@ -190,4 +206,6 @@ class GroundingSettings(BaseModel):
             out["sense_weight"] = self.sense_weight
         if self.class_senses > 0:  # likewise for the class names' (2026-12-06, session 33)
             out["class_sense_weight"] = self.class_senses
+        if self.conse_temperature != 1.0:  # likewise for ConSE's temperature (session 34)
+            out["conse_temperature"] = self.conse_temperature
         return out

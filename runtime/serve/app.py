@@ -809,12 +809,14 @@ ImageEncoderChoice = Literal["conse", "none"]
 
 
 def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1,
-                       sense_weight: float | None = None) -> ImageEncoder | None:
+                       sense_weight: float | None = None, temperature: float | None = None) -> ImageEncoder | None:
     """The image encoder for ``/ground_image`` (``none``: the endpoint answers 503).
     ``sense_weight``: how ConSE reads its class names (the server's
-    ``GroundingSettings.class_senses``, which its hubness reference follows; None: the default)."""
+    ``GroundingSettings.class_senses``, which its hubness reference follows; None: the default);
+    ``temperature``: its classifier's softmax temperature for ConSE's weights (the server's
+    ``GroundingSettings.conse_temperature``; None: the default)."""
     if name == "none":
         return None
     from ..encoders.conse import ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, sense_weight=sense_weight)
+    return ConSEImageEncoder(threads=threads, sense_weight=sense_weight, temperature=temperature)
