@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 import typer
@@ -105,6 +106,21 @@ def test_eval_imagenet_cli(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
     assert "| CRAFT | skipped" in md.read_text()
 
 
+def _small_imagenet_run(runtime_kbs: RuntimeKBs, tmp_path: Path, flags: list[str]) -> dict[str, Any]:
+    """``craft eval imagenet`` on one verb of the test bundle's objects, with ``flags``: its report."""
+    out = tmp_path / "r.json"
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"]}))
+    (tmp_path / "none").mkdir()
+    result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
+                                 "--kb-dir", str(tmp_path / "none"), "--episodes", "3", "--json", str(out),
+                                 "--no-cache", "--threads", "1", "--classes", str(RUNTIME_KB / "objects.txt"),
+                                 *flags])
+    assert result.exit_code == 0, result.output
+    report: dict[str, Any] = json.loads(out.read_text())
+    return report
+
+
 @pytest.mark.parametrize(("flags", "weights"), [
     ([], {"CRAFT-E": (8.0, 1.0), "alignment-only": (0.0, 1.0), "affordance-only": (8.0, 0.0)}),
     (["--beta", "1", "--gamma", "1"], {"CRAFT-E": (1.0, 1.0), "alignment-only": (0.0, 1.0), "affordance-only": (1.0, 0.0)}),
@@ -113,16 +129,8 @@ def test_eval_weights_reach_every_method(runtime_kbs: RuntimeKBs, tmp_path: Path
                                          weights: dict[str, tuple[float, float]]) -> None:
     """``--beta/--gamma`` (the paper's 1 / 1) replace the default weights of every method; each
     single-term ablation keeps its one term off."""
-    out = tmp_path / "r.json"
-    labels = tmp_path / "labels.json"
-    labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"]}))
-    (tmp_path / "none").mkdir()
-    result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
-                                 "--kb-dir", str(tmp_path / "none"), "--episodes", "3", "--json", str(out),
-                                 "--no-cache", "--threads", "1", "--classes", str(RUNTIME_KB / "objects.txt"),
-                                 *flags])
-    assert result.exit_code == 0, result.output
-    settings = {name: m["settings"] for name, m in json.loads(out.read_text())["methods"].items() if name in weights}
+    report = _small_imagenet_run(runtime_kbs, tmp_path, flags)
+    settings = {name: m["settings"] for name, m in report["methods"].items() if name in weights}
     assert {name: (s["beta"], s["gamma"]) for name, s in settings.items()} == weights
 
 
@@ -131,16 +139,8 @@ def test_conse_temperature_reaches_the_encoder(runtime_kbs: RuntimeKBs, tmp_path
                                                suffix: str) -> None:
     """``--conse-temperature`` (default 2; 1: ConSE's own weights, every run from before) builds
     the evaluation's encoder, whose id in the report says which."""
-    out = tmp_path / "r.json"
-    labels = tmp_path / "labels.json"
-    labels.write_text(json.dumps({"cut": ["cleaver", "hatchet"]}))
-    (tmp_path / "none").mkdir()
-    result = runner.invoke(app, ["eval", "imagenet", "--labels", str(labels), "--kb", str(runtime_kbs.kb),
-                                 "--kb-dir", str(tmp_path / "none"), "--episodes", "3", "--json", str(out),
-                                 "--no-cache", "--threads", "1", "--classes", str(RUNTIME_KB / "objects.txt"),
-                                 *flags])
-    assert result.exit_code == 0, result.output
-    assert json.loads(out.read_text())["config"]["image_encoder"].endswith("+minilm-l6-v2@53aa51172d14" + suffix)
+    report = _small_imagenet_run(runtime_kbs, tmp_path, flags)
+    assert report["config"]["image_encoder"].endswith("+minilm-l6-v2@53aa51172d14" + suffix)
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "inf", "nan"])

@@ -109,10 +109,7 @@ def demo(
     except BundleError as exc:
         fail(str(exc))
     method = bundle.manifest.kb_name
-    try:
-        encoder = default_encoder(threads, sense_weight=sense_weight, temperature=conse_temperature)
-    except ValueError as exc:
-        fail(f"--conse-temperature: {exc}")
+    encoder = default_encoder(threads, sense_weight=sense_weight, temperature=conse_temperature)
     try:
         weight_b, weight_g = energy_weights(beta, gamma)
         spec_m = MethodSpec(method, "demo", bundle_path, beta=weight_b, gamma=weight_g)

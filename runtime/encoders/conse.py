@@ -284,7 +284,9 @@ class ConSEImageEncoder:
 
     ``classifier``: ``efficientnet-lite1`` (the default) or ``efficientnet-lite0`` (the encoder
     of every result before 2026-12-04; ``docs/recognition.md`` compares them). Crops are resized
-    to the classifier's own training resolution (Lite1 240, Lite0 224).
+    to the classifier's own training resolution (Lite1 240, Lite0 224). ``sense_weight``: how the
+    class names are read; ``temperature``: the classifier's softmax temperature for ConSE's
+    weights (module docstring); None: their defaults. The ``id`` says all three.
 
     ``threads`` caps torch's intra-op threads during forward passes: on a busy 2-core host one
     thread was measured at ~65 ms per image against 0.2-2.4 s with two contending threads.
