@@ -61,10 +61,11 @@ def main() -> None:
     grounders = build_grounders(runnable, GroundingSettings(), sim_vocabulary())
     settings = list(itertools.product(TOP_K, SCALES, WEIGHTS))
     hits: dict[tuple[str, Any], int] = {(m, s): 0 for m in METHODS for s in [None, *settings]}
+    cavity = any(g.cavity_cue_active for g in grounders.values())  # measured as ``craft eval sim`` does
     with SimEnv() as env:
         for n, spec in enumerate(specs):
             env.reset(spec.scene)
-            perception = perceive(env, encoder, cfg)
+            perception = perceive(env, encoder, cfg, cavity=cavity)
             rois = grounding_rois(perception)
             seen: dict[int, dict[int, npt.NDArray[np.float32] | None]] = {s: {} for s in SCALES}
             for method in METHODS:

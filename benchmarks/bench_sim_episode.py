@@ -71,13 +71,14 @@ def main() -> None:
     labels = load_sim_labels(args.labels)
     specs = make_episode_specs(labels, layouts=3)[: args.episodes]
     timings: list[EpisodeTiming] = []
+    cavity = any(g.cavity_cue_active for g in grounders.values())  # measured as ``craft eval sim`` does
     for spec in specs:
         with SimEnv() as env:
             t0 = time.perf_counter()
             env.reset(spec.scene)
             start = SavedStart(env)
             t1 = time.perf_counter()
-            per = perceive(env, encoder, config)
+            per = perceive(env, encoder, config, cavity=cavity)
             rois = grounding_rois(per)
             t2 = time.perf_counter()
             chosen = {name: g.ground(spec.verb, rois).chosen for name, g in grounders.items()}
