@@ -79,6 +79,22 @@ def test_the_grounder_applies_it_by_default_and_on_request_only() -> None:
     assert "hubness" not in GroundingSettings().energy_dict()
 
 
+def test_image_hypotheses_are_the_energies_p_obj_before_any_cue() -> None:
+    """``image_hypotheses`` is what ``energies`` reads from the embeddings alone (names in their
+    sense, less their hubness): recognition scores rank it, so it must not drift from grounding."""
+    bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
+    vocab = ["knife", "tennis ball", "correction fluid", "cup"]
+    classes = load_class_embeddings()
+    crops = np.stack([classes[:3].mean(axis=0), classes[400:410].mean(axis=0)])  # [2, d]
+    for settings in (GroundingSettings(vocabulary=vocab), GroundingSettings(vocabulary=vocab, hubness=False)):
+        grounder = Grounder(bundle, settings)
+        p = grounder.image_hypotheses(crops)
+        assert p.shape == (2, 4)
+        np.testing.assert_array_equal(p, grounder.energies(grounder.verbs[0], crops).p_obj)
+    with pytest.raises(ValueError, match="image embeddings must be"):
+        grounder.image_hypotheses(np.ones((2, 7), np.float32))
+
+
 def test_requiring_it_in_another_text_space_names_the_problem(monkeypatch: pytest.MonkeyPatch) -> None:
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
     monkeypatch.setattr("craft_e.runtime.grounding.grounder.reference_for", lambda *_: None)

@@ -191,6 +191,23 @@ def test_tiny_robustness_run(runtime_kbs: RuntimeKBs, conse: Any, tmp_path: Path
             assert len(rows) == 2
             assert all(0.0 <= r[m] <= 1.0 for r in rows for m in ("top1", "top2", "mrr", "ndcg"))
         assert all(r is not None and 0.0 <= r <= 1.0 for r in rep.recognition[kind])
+    # the recognition row ranks p(o | r) as the grounder reads it (senses, hubness), on the photos
+    # of the pool's classes the bundle knows
+    from craft_e.runtime.evaluation.common import vocabulary_senses
+    from craft_e.runtime.evaluation.imagenet import embed_dataset_images, load_dataset
+    from craft_e.runtime.grounding.grounder import Grounder
+    from craft_e.runtime.grounding.settings import GroundingSettings
+    from craft_e.runtime.kb.bundle import load_bundle
+
+    data = load_dataset()
+    bundle = load_bundle(runtime_kbs.kb, check_encoder=False)
+    known = sorted(data.class_index[c] for c in runtime_kbs.objects if c in bundle.object_index)
+    names = [data.classes[c] for c in known]
+    images = [i for c in known for i in data.class_images[c]]
+    truth = [k for k, c in enumerate(known) for _ in data.class_images[c]]
+    grounder = Grounder(bundle, GroundingSettings(vocabulary=names), senses=vocabulary_senses())
+    p = grounder.image_hypotheses(embed_dataset_images(data, images, conse, tmp_path / "enc"))
+    assert rep.recognition["gaussian"][0] == pytest.approx(float(np.mean(p.argmax(axis=1) == truth)))
     # level 0 is exactly the plain protocol
     clean = {r.name: r.metrics for r in evaluate_imagenet(labels, **kwargs).results}
     assert rep.metrics["gaussian"]["CRAFT-E"][0] == pytest.approx(clean["CRAFT-E"])

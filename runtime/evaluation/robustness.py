@@ -24,8 +24,8 @@ cache with ``craft eval imagenet``. Episodes do not depend on the noise, so ever
 the *same* episodes (paired comparison).
 
 Besides the methods' metrics, each level reports how much perception itself degraded: the
-fraction of photos whose embedding is nearest to their own class name among the pool's classes
-(``recognition``). A method that holds its accuracy while recognition collapses is robust; one
+fraction of photos whose p(o | r), read as the grounder reads it (``Grounder.image_hypotheses``),
+is highest at their own class name among the pool's classes (``recognition``). A method that holds its accuracy while recognition collapses is robust; one
 whose accuracy falls with recognition is not.
 
 ``perturb_grasp_scores`` and ``jitter_box`` are exported for the static-scene harness (grasp
@@ -45,16 +45,15 @@ import numpy as np
 import numpy.typing as npt
 
 from ..grounding.settings import GroundingSettings
-from .common import SkippedMethod
+from .common import SkippedMethod, vocabulary_senses
 from .imagenet import (
     ImageNetReport,
     LabelsError,
-    calibrate_temperature,
     embed_dataset_images,
     evaluate_imagenet,
     load_dataset,
 )
-from .methods import MethodSpec, default_methods
+from .methods import MethodSpec, default_methods, method_settings
 
 UInt8Image = npt.NDArray[np.uint8]
 FloatArray = npt.NDArray[np.float32]
@@ -285,7 +284,7 @@ class RobustnessReport:
     metrics: dict[str, dict[str, list[dict[str, float]]]]
     #: the same layout: standard deviation of each metric across noise seeds (0 with one seed)
     spread: dict[str, dict[str, list[dict[str, float]]]]
-    #: kind -> fraction of photos nearest to their own class name, per level (None: unavailable)
+    #: kind -> fraction of photos whose p(o | r) is highest at their own class name, per level (None: unavailable)
     recognition: dict[str, list[float | None]]
     skipped: list[SkippedMethod]
     config: dict[str, Any]
@@ -307,8 +306,8 @@ class RobustnessReport:
                f"seed {c['seed']}, noise seeds {c['noise_seeds']}, T={c['temperature']:g}, {c['verbs']} verbs, labels "
                f"`{Path(c['labels']).name}`)\n",
                "Cells: single-affordance Top-1 / multi-affordance MRR, percent. The same episodes at "
-               "every level. *Recognition*: photos whose embedding is nearest to their own class name "
-               "among the pool's classes.\n"]
+               "every level. *Recognition*: photos whose p(o|r), read as the grounder reads it (names in their "
+               "sense, the hubness correction), is highest at their own class name among the pool's classes.\n"]
         for kind, levels in self.levels.items():
             heads = [level_label(kind, v) for v in levels]
             out.append(f"\n#### {kind}\n")
@@ -381,22 +380,30 @@ def _cell(row: Mapping[str, float], spread: Mapping[str, float], show_spread: bo
 
 
 def _recognition(data: Any, class_ids: list[int], encoder: Any, cache_dir: Path | None,
-                 bundle_path: Path, temperature: float) -> float | None:
-    """Fraction of photos whose embedding is nearest to their own class name (pool classes)."""
+                 spec: MethodSpec, settings: GroundingSettings) -> float | None:
+    """Fraction of photos whose p(o | r) is highest at their own class name among the pool's
+    classes that ``spec``'s bundle knows, read as its grounder reads it (``Grounder.image_hypotheses``:
+    names in their sense, the hubness correction), so that the row measures the perception the
+    methods act on. (Until 2026-12-07 it ranked the bundle's bare name embeddings, which the
+    grounder stopped reading when the senses and the hubness correction became defaults.)"""
+    from ..grounding.grounder import Grounder
     from ..kb.bundle import BundleError, load_bundle
 
     try:
-        bundle = load_bundle(bundle_path, check_encoder=False)
+        bundle = load_bundle(spec.bundle, check_encoder=False)
     except BundleError:
         return None
     known = [c for c in class_ids if data.classes[c] in bundle.object_index]
     if len(known) < 2 or bundle.manifest.text_encoder.id != encoder.text_encoder_id:
         return None
     images = [i for c in known for i in data.class_images[c]]
-    truth = [known.index(c) for c in known for _ in data.class_images[c]]
+    truth = np.array([known.index(c) for c in known for _ in data.class_images[c]])
     emb = embed_dataset_images(data, images, encoder, cache_dir)  # [n, d]
-    obj = bundle.embeddings["object"][[bundle.object_index[data.classes[c]] for c in known]]  # [C, d]
-    return calibrate_temperature(emb, obj, truth, grid=(temperature,)).top1
+    names = [data.classes[c] for c in known]
+    senses = vocabulary_senses() if settings.sense_weight > 0 else None
+    grounder = Grounder(bundle, method_settings(spec, settings, names, alpha=0.0), senses=senses)
+    p = grounder.image_hypotheses(emb)  # [n, C]
+    return float((p.argmax(axis=1) == truth).mean())
 
 
 def evaluate_robustness(
@@ -434,7 +441,6 @@ def evaluate_robustness(
     if not seeds:
         raise ValueError("need at least one noise seed")
     specs = list(methods) if methods is not None else default_methods(kb)
-    temperature = (settings or GroundingSettings()).temperature
     if encoder is None:
         from ..encoders.conse import ConSEImageEncoder
 
@@ -452,7 +458,7 @@ def evaluate_robustness(
         report = evaluate_imagenet(labels_path, methods=specs, episodes=episodes, seed=seed, data_root=data_root,
                                    pool=pool, vocabulary=vocabulary, encoder=wrapped, cache_dir=cache_dir,
                                    settings=settings)
-        rec = _recognition(data, class_ids, wrapped, cache_dir, specs[0].bundle, temperature) if specs else None
+        rec = _recognition(data, class_ids, wrapped, cache_dir, specs[0], settings or GroundingSettings()) if specs else None
         return {r.name: r.metrics for r in report.results}, rec, report
 
     clean_metrics, clean_rec, clean = run(NOISE_KINDS[0], 0.0, seeds[0])
@@ -493,6 +499,7 @@ def evaluate_robustness(
     notes += [f"{s.verb} ({s.setting}) skipped: {s.reason}" for s in clean.skipped_verbs]
     config = {**clean.config, "noise_seeds": seeds, "levels": {k: list(v) for k, v in chosen.items()},
               "recognition_vocabulary": "pool classes known to the first method's bundle",
+              "recognition_reads": "Grounder.image_hypotheses (names in their sense, the hubness correction)",
               "image_encoder": getattr(encoder, "id", None)}
     return RobustnessReport({k: list(v) for k, v in chosen.items()}, names, metrics, spread, recognition,
                             list(clean.skipped), config, notes)

@@ -736,20 +736,34 @@ class Grounder:
         return self._energies(self._plan(normalize_verb_name(verb)), embeddings, grasp_max, p_obj, extents,
                               colours, classes, cavities)
 
+    def image_hypotheses(self, embeddings: npt.NDArray[Any]) -> FloatArray:
+        """``[N, O]`` p(o | r) over ``vocabulary`` from the image embeddings alone, read as
+        ``energies`` reads it before any depth or colour cue: each name in its sense, less its
+        hubness, softmax at ``temperature``. What a recognition score should rank, so that it
+        measures the perception the grounder acts on."""
+        return self._image_hypotheses(self._checked_unit_rows(embeddings))
+
+    def _checked_unit_rows(self, embeddings: npt.NDArray[Any]) -> FloatArray:
+        emb = _unit_rows(embeddings)  # [N, d]
+        if emb.ndim != 2 or emb.shape[1] != self.dim:
+            raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
+                             f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
+        return emb
+
+    def _image_hypotheses(self, emb: FloatArray) -> FloatArray:
+        cosine = emb @ self._obj_emb_t  # [N, O]
+        if self._hubness is not None:
+            cosine = with_hubness(cosine, self._hubness)
+        return object_hypotheses(cosine, self.temperature)  # [N, O]
+
     def _energies(self, plan: _VerbPlan, embeddings: npt.NDArray[Any], grasp_max: npt.NDArray[Any] | None,
                   p_obj: npt.NDArray[Any] | None = None, extents: npt.NDArray[Any] | None = None,
                   colours: npt.NDArray[Any] | None = None,
                   classes: Sequence[ClassTop | None] | None = None,
                   cavities: npt.NDArray[Any] | None = None) -> EnergyTerms:
-        emb = _unit_rows(embeddings)  # [N, d]
-        if emb.ndim != 2 or emb.shape[1] != self.dim:
-            raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
-                             f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
+        emb = self._checked_unit_rows(embeddings)  # [N, d]
         if p_obj is None:
-            cosine = emb @ self._obj_emb_t  # [N, O]
-            if self._hubness is not None:
-                cosine = with_hubness(cosine, self._hubness)
-            p = object_hypotheses(cosine, self.temperature)  # [N, O]
+            p = self._image_hypotheses(emb)  # [N, O]
             if self._size_table is not None and extents is not None:
                 p = with_size_cue(p, size_log_likelihood(extents, self._size_table))
             if self._colour_table is not None and colours is not None:
