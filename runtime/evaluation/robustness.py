@@ -25,8 +25,9 @@ the *same* episodes (paired comparison).
 
 Besides the methods' metrics, each level reports how much perception itself degraded: the
 fraction of photos whose p(o | r), read as the grounder reads it (``Grounder.image_hypotheses``),
-is highest at their own class name among the pool's classes (``recognition``). A method that holds its accuracy while recognition collapses is robust; one
-whose accuracy falls with recognition is not.
+is highest at their own class name among the pool's classes (``recognition``). A method that
+holds its accuracy while recognition collapses is robust; one whose accuracy falls with
+recognition is not.
 
 ``perturb_grasp_scores`` and ``jitter_box`` are exported for the static-scene harness (grasp
 score noise and ROI jitter on rendered scenes).
@@ -284,7 +285,8 @@ class RobustnessReport:
     metrics: dict[str, dict[str, list[dict[str, float]]]]
     #: the same layout: standard deviation of each metric across noise seeds (0 with one seed)
     spread: dict[str, dict[str, list[dict[str, float]]]]
-    #: kind -> fraction of photos whose p(o | r) is highest at their own class name, per level (None: unavailable)
+    #: kind -> fraction of photos whose p(o | r) is highest at their own class name, per level
+    #: (None: unavailable)
     recognition: dict[str, list[float | None]]
     skipped: list[SkippedMethod]
     config: dict[str, Any]
