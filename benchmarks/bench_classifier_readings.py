@@ -20,7 +20,7 @@ encoder sees is classified once more by each extra classifier. Then, per reading
 
 The first row must reproduce the pipeline's own embeddings (checked to 1e-5: the benchmark stops
 otherwise). Run: ``.venv/bin/python benchmarks/bench_classifier_readings.py [--labels CSV]
-[--seed 0 --seed 1 --seed 2] [--json OUT] [--markdown OUT]`` (~15 min on 2 cores for three
+[--seed 0 --seed 1 --seed 2] [--json OUT] [--markdown OUT]`` (~28 min on 2 busy cores for three
 seeds of sim-dev). Choose on sim-dev only.
 """
 
