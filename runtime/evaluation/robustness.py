@@ -381,13 +381,25 @@ def _cell(row: Mapping[str, float], spread: Mapping[str, float], show_spread: bo
     return f"{top1} / {mrr}"
 
 
-def _recognition(data: Any, class_ids: list[int], encoder: Any, cache_dir: Path | None,
-                 spec: MethodSpec, settings: GroundingSettings) -> float | None:
-    """Fraction of photos whose p(o | r) is highest at their own class name among the pool's
-    classes that ``spec``'s bundle knows, read as its grounder reads it (``Grounder.image_hypotheses``:
-    names in their sense, the hubness correction), so that the row measures the perception the
-    methods act on. (Until 2026-12-07 it ranked the bundle's bare name embeddings, which the
-    grounder stopped reading when the senses and the hubness correction became defaults.)"""
+@dataclass(frozen=True)
+class _Recogniser:
+    """The photos of the pool's classes that the first method's bundle knows, their true classes,
+    and that bundle's grounder over those names: built once per sweep, since none depends on the
+    noise."""
+
+    images: list[int]
+    truth: npt.NDArray[np.intp]
+    grounder: Any
+
+
+def _recogniser(data: Any, class_ids: list[int], spec: MethodSpec, settings: GroundingSettings,
+                text_encoder_id: str) -> _Recogniser | None:
+    """p(o | r) read as ``spec``'s grounder reads it (``Grounder.image_hypotheses``: names in their
+    sense, the hubness correction), so that the row measures the perception the methods act on.
+    (Until 2026-12-07 it ranked the bundle's bare name embeddings, which the grounder stopped
+    reading when the senses and the hubness correction became defaults.) None: no such bundle, a
+    bundle in another text space than the image encoder's (``text_encoder_id``), or fewer than
+    two known classes."""
     from ..grounding.grounder import Grounder
     from ..kb.bundle import BundleError, load_bundle
 
@@ -396,16 +408,23 @@ def _recognition(data: Any, class_ids: list[int], encoder: Any, cache_dir: Path 
     except BundleError:
         return None
     known = [c for c in class_ids if data.classes[c] in bundle.object_index]
-    if len(known) < 2 or bundle.manifest.text_encoder.id != encoder.text_encoder_id:
+    if len(known) < 2 or bundle.manifest.text_encoder.id != text_encoder_id:
         return None
-    images = [i for c in known for i in data.class_images[c]]
-    truth = np.array([known.index(c) for c in known for _ in data.class_images[c]])
-    emb = embed_dataset_images(data, images, encoder, cache_dir)  # [n, d]
     names = [data.classes[c] for c in known]
     senses = vocabulary_senses() if settings.sense_weight > 0 else None
     grounder = Grounder(bundle, method_settings(spec, settings, names, alpha=0.0), senses=senses)
-    p = grounder.image_hypotheses(emb)  # [n, C]
-    return float((p.argmax(axis=1) == truth).mean())
+    return _Recogniser([i for c in known for i in data.class_images[c]],
+                       np.array([k for k, c in enumerate(known) for _ in data.class_images[c]]),
+                       grounder)
+
+
+def _recognition(data: Any, recogniser: _Recogniser | None, encoder: Any, cache_dir: Path | None) -> float | None:
+    """Fraction of the recogniser's photos whose p(o | r) is highest at their own class name."""
+    if recogniser is None:
+        return None
+    emb = embed_dataset_images(data, recogniser.images, encoder, cache_dir)  # [n, d]
+    p = recogniser.grounder.image_hypotheses(emb)  # [n, C]
+    return float((p.argmax(axis=1) == recogniser.truth).mean())
 
 
 def evaluate_robustness(
@@ -454,13 +473,16 @@ def evaluate_robustness(
         raise LabelsError(f"pool names classes outside the benchmark: {unknown}")
     class_ids = sorted(data.class_index[c] for c in pool_names)
 
+    recogniser = (_recogniser(data, class_ids, specs[0], settings or GroundingSettings(), encoder.text_encoder_id)
+                  if specs else None)
+
     def run(kind: NoiseKind, level: float, noise_seed: int) -> tuple[dict[str, dict[str, float]], float | None,
                                                                     ImageNetReport]:
         wrapped = PerturbedImageEncoder(encoder, kind, level, noise_seed)
         report = evaluate_imagenet(labels_path, methods=specs, episodes=episodes, seed=seed, data_root=data_root,
                                    pool=pool, vocabulary=vocabulary, encoder=wrapped, cache_dir=cache_dir,
                                    settings=settings)
-        rec = _recognition(data, class_ids, wrapped, cache_dir, specs[0], settings or GroundingSettings()) if specs else None
+        rec = _recognition(data, recogniser, wrapped, cache_dir)
         return {r.name: r.metrics for r in report.results}, rec, report
 
     clean_metrics, clean_rec, clean = run(NOISE_KINDS[0], 0.0, seeds[0])
