@@ -2,13 +2,21 @@
 
 The recognition protocol of ``craft eval recognition`` (74 assets × 3 seeded views, the 2x render's
 whole square crop, p(o|r) over the 62 sim names): every view is rendered and encoded once, then
-top-1/top-5 are computed for each (λ, κ) of the grid, without and with the size cue. It also
-reports how often the look-alike answer of a view's true name lists the classifier's top-1 class.
-λ = 0.5, κ = 1 (the shipped constants) was taken from this grid's plateau; the row with them
-equals ``craft eval recognition``'s "size + look-alike cue" row. These are the renders the cue is
-reported on: the grid picks constants on them, which ``docs/recognition.md`` states.
+top-1/top-5 are computed for each (λ, κ) of the grid on top of two readings of p(o|r) at today's
+defaults (the grounder's hubness correction and names in their sense, ConSE's class names in
+theirs at temperature 2): the image alone, and with the depth cues the robot uses (size and
+cavity), whose "no cue" row equals ``craft eval recognition``'s default row. It also reports how
+often the look-alike answer of a view's true name lists the classifier's top-1 class.
+λ = 0.5, κ = 1 (the shipped constants) was taken from this grid's plateau when it was first run
+(Lite0, the size cue alone, none of the later readings; ``docs/recognition.md``). These are the
+renders the cue is reported on: the grid picks constants on them, which ``docs/recognition.md``
+states.
 
-Run: ``.venv/bin/python benchmarks/bench_lookalike_lambda.py [--json OUT] [--markdown OUT]`` (~4 min).
+Why the readings are spelled out here: until 2026-12-07 the script built its grounder with
+whatever the settings' defaults were, without the names' senses or the cavity cue, so its base
+drifted from every recognition row as the defaults changed.
+
+Run: ``.venv/bin/python benchmarks/bench_lookalike_lambda.py [--json OUT] [--markdown OUT]`` (~2.5 min).
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from craft_e.runtime.encoders.conse import (
     encode_with_classes,
     imagenet_class_names,
 )
+from craft_e.runtime.evaluation.common import vocabulary_senses
 from craft_e.runtime.evaluation.recognition import render_views
 from craft_e.runtime.grounding.grounder import Grounder
 from craft_e.runtime.grounding.lookalike_cue import (
@@ -61,11 +70,14 @@ def main() -> None:
     cols = [vocabulary.index(v.name) for v in views]
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
     names = imagenet_class_names()
-    base = {size: Grounder(bundle, GroundingSettings(vocabulary=vocabulary, size_cue=size)).energies(
-        "cut", emb, extents=extents if size else None).p_obj for size in (False, True)}
+    cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in views])
+    senses = vocabulary_senses()  # the glosses every evaluation reads names in
+    base = {depth: Grounder(bundle, GroundingSettings(vocabulary=vocabulary, size_cue=depth, cavity_cue=depth),
+                            senses=senses).energies("cut", emb, extents=extents, cavities=cavities).p_obj
+            for depth in (False, True)}
     hits = [bool(top) and names[top[0][0]] in dict(bundle.lookalikes[v.name]) for v, top in zip(views, classes, strict=True)]
     rows: list[dict[str, Any]] = [{"lambda": None, "kappa": None, "image": top_k_rates(base[False], cols),
-                                   "size": top_k_rates(base[True], cols)}]
+                                   "depth_cues": top_k_rates(base[True], cols)}]
     for lam in args.lambdas:
         table = lookalike_table(vocabulary, bundle.lookalikes, names, lam)
         assert table is not None
@@ -73,15 +85,15 @@ def main() -> None:
             ll = lookalike_log_likelihood(classes, table, kappa)
             rows.append({"lambda": lam, "kappa": kappa,
                          "image": top_k_rates(with_lookalike_cue(base[False], ll), cols),
-                         "size": top_k_rates(with_lookalike_cue(base[True], ll), cols)})
+                         "depth_cues": top_k_rates(with_lookalike_cue(base[True], ll), cols)})
     lines = ["### The look-alike cue's λ and κ on the recognition renders (top-1 / top-5, percent)", "",
              f"{len(views)} views; the classifier's top-1 class is listed in the true name's answer for "
              f"{100 * np.mean(hits):.1f} % of them.", "",
-             "| λ | κ | image + cue | size cue + cue |", "|---:|---:|---:|---:|"]
+             "| λ | κ | image + cue | image, size and cavity cues + cue |", "|---:|---:|---:|---:|"]
     for r in rows:
         lam = "no cue" if r["lambda"] is None else f"{r['lambda']:g}"
         kap = "" if r["kappa"] is None else f"{r['kappa']:g}"
-        lines.append(f"| {lam} | {kap} | {r['image'][0]} / {r['image'][1]} | {r['size'][0]} / {r['size'][1]} |")
+        lines.append(f"| {lam} | {kap} | {r['image'][0]} / {r['image'][1]} | {r['depth_cues'][0]} / {r['depth_cues'][1]} |")
     text = "\n".join(lines) + "\n"
     print(text)
     if args.markdown:
