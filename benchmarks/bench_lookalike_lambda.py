@@ -12,9 +12,10 @@ often the look-alike answer of a view's true name lists the classifier's top-1 c
 renders the cue is reported on: the grid picks constants on them, which ``docs/recognition.md``
 states.
 
-Why the readings are spelled out here: until 2026-12-07 the script built its grounder with
-whatever the settings' defaults were, without the names' senses or the cavity cue, so its base
-drifted from every recognition row as the defaults changed.
+Why the readings are spelled out here: until 2026-12-07 the script read p(o|r) with the size cue
+alone, without the cavity cue (a default since 2026-12-05), while its docstring still called its
+shipped row ``craft eval recognition``'s "size + look-alike cue" row: its base matched no
+recognition row any more.
 
 Run: ``.venv/bin/python benchmarks/bench_lookalike_lambda.py [--json OUT] [--markdown OUT]`` (~2.5 min).
 """
