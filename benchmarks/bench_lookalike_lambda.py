@@ -27,6 +27,7 @@ import json
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from craft_e.arguments import number_list, output_file
 from craft_e.paths import KB_DIR
@@ -44,7 +45,7 @@ from craft_e.runtime.grounding.lookalike_cue import (
     with_lookalike_cue,
 )
 from craft_e.runtime.grounding.settings import GroundingSettings
-from craft_e.runtime.kb.bundle import load_bundle
+from craft_e.runtime.kb.bundle import Bundle, load_bundle
 from craft_e.runtime.sim.assets import object_catalog
 from craft_e.runtime.sim.pipeline import sim_vocabulary
 
@@ -54,6 +55,18 @@ def top_k_rates(p: np.ndarray, cols: list[int]) -> tuple[float, float]:
     true = p[np.arange(len(cols)), cols]
     ranks = (p > true[:, None]).sum(axis=1)
     return round(100 * float(np.mean(ranks == 0)), 1), round(100 * float(np.mean(ranks < 5)), 1)
+
+
+def base_readings(bundle: Bundle, vocabulary: list[str], embeddings: npt.NDArray[np.float32],
+                  extents: npt.NDArray[np.float64], cavities: npt.NDArray[np.float64]) -> dict[bool, npt.NDArray[Any]]:
+    """p(o|r) ``[N, O]`` the grid weighs with the cue: ``False`` the image alone, ``True`` with the
+    size and cavity cues, both read as the evaluations' grounders read them (the day's defaults,
+    names in the vocabulary's glosses, ``methods.build_grounders``). ``tests/test_bench_lookalike_lambda.py``
+    holds the ``True`` reading to the evaluations' CRAFT-E grounder, so it cannot drift again."""
+    senses = vocabulary_senses()
+    return {depth: Grounder(bundle, GroundingSettings(vocabulary=vocabulary, size_cue=depth, cavity_cue=depth),
+                            senses=senses).energies("cut", embeddings, extents=extents, cavities=cavities).p_obj
+            for depth in (False, True)}
 
 
 def main() -> None:
@@ -72,10 +85,7 @@ def main() -> None:
     bundle = load_bundle(KB_DIR / "craft-e-default", check_encoder=False)
     names = imagenet_class_names()
     cavities = np.array([np.nan if v.cavity_m is None else v.cavity_m for v in views])
-    senses = vocabulary_senses()  # the glosses every evaluation reads names in
-    base = {depth: Grounder(bundle, GroundingSettings(vocabulary=vocabulary, size_cue=depth, cavity_cue=depth),
-                            senses=senses).energies("cut", emb, extents=extents, cavities=cavities).p_obj
-            for depth in (False, True)}
+    base = base_readings(bundle, vocabulary, emb, extents, cavities)
     hits = [bool(top) and names[top[0][0]] in dict(bundle.lookalikes[v.name]) for v, top in zip(views, classes, strict=True)]
     rows: list[dict[str, Any]] = [{"lambda": None, "kappa": None, "image": top_k_rates(base[False], cols),
                                    "depth_cues": top_k_rates(base[True], cols)}]
