@@ -152,6 +152,23 @@ def _source_pass(
     return draft
 
 
+def _check_inputs(config: BuildConfig) -> None:
+    """Read the overrides and local ConceptNet files' heads before the build's work.
+
+    A wrong ``--overrides`` or ``--conceptnet csv:`` path must fail at once with an error that
+    names it (exit 2), not after the knowledge passes, nor as a bare ``OSError`` that the CLI
+    could only guess about.
+    """
+    if config.overrides_file is not None:
+        from .sources.overrides import read_overrides_bytes
+
+        read_overrides_bytes(config.overrides_file)
+    if config.mode == "conceptnet":
+        from .sources.conceptnet import check_spec
+
+        check_spec(config.conceptnet)
+
+
 def _overrides_pass(config: BuildConfig, draft: KnowledgeDraft) -> None:
     if config.overrides_file is not None:
         from .sources.overrides import apply_overrides
@@ -214,6 +231,7 @@ def build(
     check_out_path(config.out, config.name, force=config.force, inputs=inputs)
     verbs = read_vocabulary(config.verbs_file, kind="verbs")
     objects = read_vocabulary(config.objects_file, kind="objects")
+    _check_inputs(config)
     cache = RecordCache(config.cache_root)
 
     _phase(progress, "knowledge: records and passes")

@@ -8,6 +8,7 @@ record in replay, live provider failed after retries).
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -85,6 +86,14 @@ ExistingCacheOpt = Annotated[
 ]
 
 
+def _given_path(text: str) -> Path:
+    """A path option's parser: an empty value is refused, not read as the working directory (an
+    ``--out "$UNSET"`` would otherwise name wherever the command ran)."""
+    if not text.strip():
+        raise typer.BadParameter("empty path; give a folder path (nothing was written)")
+    return Path(text)
+
+
 @app.command()
 def build(
     verbs: Annotated[Path, typer.Option(help="Verbs file: one verb per line.")],
@@ -125,8 +134,9 @@ def build(
     ] = None,
     out: Annotated[
         Path | None,
-        typer.Option(help="Output bundle folder (default artifacts/kb/<name>, which is never "
-                     "replaced without --force)."),
+        typer.Option(parser=_given_path,
+                     help="Output bundle folder (default artifacts/kb/<name>, which is never "
+                     "replaced without --force); never inside another bundle."),
     ] = None,
     name: Annotated[
         str, typer.Option(help="KB name (lowercase, digits, . _ -).")
@@ -178,7 +188,8 @@ def build(
         float | None,
         typer.Option(
             help="Batch providers: stop waiting after this many seconds (exit 3; the batch "
-            "keeps running and the same command resumes it). Default: wait until it ends."
+            "keeps running and the same command resumes it; 0: poll once). Default: wait until "
+            "it ends."
         ),
     ] = None,
 ) -> None:
@@ -188,11 +199,18 @@ def build(
     from .build import PHASE, BuildConfig
     from .build import build as run_build
     from .cache import CacheError, cache_in_use
+    from .emit import BundleWriteError
     from .sources.llm import SourceError
     from .vocab import VocabError
 
     if provider not in PROVIDERS:
         fail(f"unknown provider {provider!r}; choose one of {', '.join(PROVIDERS)}")
+    if not record_provider.strip():  # replay would look for records of provider '' and miss
+        fail("--record-provider is empty; name whose records to replay, e.g. curated or openai")
+    if batch_wait is not None and not (math.isfinite(batch_wait) and batch_wait >= 0):
+        # NaN would compare false and wait forever; a negative bound gives up at the first poll
+        fail(f"--batch-wait {batch_wait}: give a finite number of seconds >= 0 (0 polls the batch "
+             "once; leave the option out to wait until the batch ends)")
     if mode not in ("llm", "conceptnet", "direct", "llm+direct"):
         fail(f"unknown mode {mode!r}; choose llm, conceptnet, direct or llm+direct")
     if object_pass not in ("ask", "reuse"):
@@ -256,6 +274,8 @@ def build(
     if out is None and (config.out / "manifest.json").is_file() and not force:
         fail(f"{config.out}: a bundle already exists at the default output (artifacts/kb/{name}); "
              "pass --out DIR for a new bundle, or --force to replace it (nothing was written)")
+    if quiet:  # the text encoder's weight-loading bar (transformers) reads this when it loads
+        os.environ["HF_HUB_DISABLE_PROGRESS_BARS"] = "1"
     try:
         with _progress(quiet) as bar:
             tasks: dict[str, TaskID] = {}
@@ -304,18 +324,22 @@ def build(
         fail(str(exc))
     except CacheError as exc:  # a damaged record or embedding is a bad input file
         fail(f"{exc} (`craftc cache verify` lists every damaged file)")
-    except OSError as exc:  # read-only or full --out, a concurrent build replacing --out
+    except BundleWriteError as exc:  # read-only or full --out, a concurrent build replacing --out
+        where = f" {exc.filename}" if exc.filename else ""
+        fail(
+            f"cannot write the bundle --out {config.out}:{where} {exc.strerror or exc}; "
+            "check that the folder is writable and has free space (a build racing another "
+            "build to the same --out: retry); nothing half-written was left at --out"
+        )
+    except OSError as exc:  # not the output (that is BundleWriteError): the cache or an input
         where = f" {exc.filename}" if exc.filename else ""
         failed = Path(os.fsdecode(exc.filename)).absolute() if exc.filename else None
         if failed is not None and Path(cache).absolute() in failed.parents:
             fail(f"cannot read{where} from the record cache ({exc.strerror or exc}): it changed while "
                  "the build read it (a `craftc cache clean --yes` at the same time?); run the build "
                  "again; nothing was written to --out")
-        fail(
-            f"cannot write the bundle --out {config.out}:{where} {exc.strerror or exc}; "
-            "check that the folder is writable and has free space (a build racing another "
-            "build to the same --out: retry); nothing half-written was left at --out"
-        )
+        fail(f"cannot read{where or ' an input'} ({exc.strerror or exc}); check the build's input "
+             "files and options; nothing was written to --out")
     for note in result.notes:
         err.print(f"[yellow]note:[/] {escape(note)}", highlight=False)
     m = result.manifest
@@ -340,13 +364,43 @@ def _progress(quiet: bool) -> Progress:
     )
 
 
+TrustedKeyOpt = Annotated[
+    list[Path] | None,
+    typer.Option(
+        "--trusted-key",
+        help="Signer's public key file (craft-signing.pub) when a bundle is a packed .craft file; "
+        "repeatable.",
+    ),
+]
+
+
+def _trusted_keys(keys: list[Path] | None) -> list[str] | None:
+    """``--trusted-key`` files for ``load_bundle``: a packed bundle (.craft) is read only when one
+    of them signed it. A key that cannot be read or is no public key is bad usage (exit 2), not a
+    bundle that failed its check, so each is read here first."""
+    from ..runtime.kb.package import PackageError, parse_public_key
+
+    for key in keys or []:
+        try:
+            parse_public_key(str(key))
+        except PackageError as exc:
+            fail(f"--trusted-key {key}: {exc}")
+    return [str(k) for k in keys] if keys else None
+
+
 @app.command()
-def validate(bundle: Annotated[Path, typer.Argument(help="Bundle folder.")]) -> None:
+def validate(
+    bundle: Annotated[
+        Path, typer.Argument(help="Bundle folder, or a signed .craft file (with --trusted-key).")
+    ],
+    trusted_key: TrustedKeyOpt = None,
+) -> None:
     """Verify a bundle: schema, per-file sha256, content hash, internal consistency."""
     from ..runtime.kb.bundle import BundleError, load_bundle
 
+    keys = _trusted_keys(trusted_key)
     try:
-        kb = load_bundle(bundle, check_encoder=False)
+        kb = load_bundle(bundle, check_encoder=False, trusted_keys=keys)
     except BundleError as exc:
         fail(str(exc), EXIT_CHECK_FAILED)
     stdout.print(
@@ -370,6 +424,7 @@ def diff(
             "weight-changes>N (repeatable).",
         ),
     ] = None,
+    trusted_key: TrustedKeyOpt = None,
 ) -> None:
     """Structural and behavioural differences between two bundles (Markdown for a PR)."""
     from ..runtime.kb.bundle import BundleError, load_bundle
@@ -385,7 +440,9 @@ def diff(
         fail(f"unknown format {format!r}; use md or json")
     try:
         parse_rules(fail_on or [])  # a typo in a gate fails before any output, not after
-        a, b = load_bundle(old, check_encoder=False), load_bundle(new, check_encoder=False)
+        keys = _trusted_keys(trusted_key)
+        a = load_bundle(old, check_encoder=False, trusted_keys=keys)
+        b = load_bundle(new, check_encoder=False, trusted_keys=keys)
         result = diff_bundles(a, b, top_k=top_k, threshold=threshold)
         failures = gate_failures(result, fail_on or [])
     except (BundleError, DiffError) as exc:
@@ -402,16 +459,20 @@ def diff(
 
 @app.command()
 def explain(
-    bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
+    bundle: Annotated[
+        Path, typer.Argument(help="Bundle folder, or a signed .craft file (with --trusted-key).")
+    ],
     verb: Annotated[str, typer.Argument(help="Verb, e.g. cut.")],
     obj: Annotated[str, typer.Argument(metavar="OBJECT", help="Object, e.g. knife.")],
+    trusted_key: TrustedKeyOpt = None,
 ) -> None:
     """Print the verb -> property -> object paths behind E_aff(verb, object)."""
     from ..runtime.grounding.explain import UnknownNameError, explain_pair
     from ..runtime.kb.bundle import BundleError, load_bundle
 
+    keys = _trusted_keys(trusted_key)
     try:
-        kb = load_bundle(bundle, check_encoder=False)
+        kb = load_bundle(bundle, check_encoder=False, trusted_keys=keys)
         text = explain_pair(kb, verb, obj).render()
     except (BundleError, UnknownNameError) as exc:
         fail(str(exc))

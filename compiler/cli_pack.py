@@ -17,10 +17,20 @@ from ..runtime.cli.common import EXIT_CHECK_FAILED, err, fail
 from ..runtime.cli.common import out as console
 
 
+def _given_path(text: str) -> Path:
+    """``--out``'s parser: an empty value is refused, not read as the working directory (a
+    ``--out "$UNSET"`` would otherwise write keys or a package wherever the command ran)."""
+    if not text.strip():
+        raise typer.BadParameter("empty path; give a path (nothing was written)")
+    return Path(text)
+
+
 def pack(
     bundle: Annotated[Path, typer.Argument(help="Bundle folder (built by craftc build).")],
     key: Annotated[Path, typer.Option("--key", help="Signing key (craft-signing.key).")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output file, e.g. kb.craft.")],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", parser=_given_path, help="Output file, e.g. kb.craft.")
+    ],
     compression: Annotated[str, typer.Option(help="gzip (default) | none.")] = "gzip",
 ) -> None:
     """Pack a bundle folder into one signed .craft file for shipping to robots."""
@@ -49,7 +59,9 @@ def pack(
 
 
 def keygen(
-    out: Annotated[Path, typer.Option("--out", help="Folder for craft-signing.key/.pub.")],
+    out: Annotated[
+        Path, typer.Option("--out", parser=_given_path, help="Folder for craft-signing.key/.pub.")
+    ],
 ) -> None:
     """Create an Ed25519 signing key pair (private key mode 0600; never commit it)."""
     from .pack import PackError

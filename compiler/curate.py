@@ -16,6 +16,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from ..files import read_text_file
 from ..schemas.names import normalize_name, normalize_property, normalize_verb
 from ..schemas.v1.payloads import (
     ObjectColour,
@@ -79,14 +80,17 @@ class CurationResult:
     not_stored: int = 0
 
 
+#: Every prompt ``record_answers`` stores answers to (``craftc curate record --prompt``).
+PROMPT_IDS = ("verb_properties", "object_properties", "property_objects", "verb_objects", *PER_OBJECT_PROMPTS)
+
+
 def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
+    """The answer objects of a JSONL file with their line numbers; a missing, unreadable,
+    non-UTF-8 file or a folder is a ``CurationError`` naming it (``files.read_text_file``), and
+    so is a file with no answer at all: "stored 0 records" and exit 0 would let a script believe
+    an empty or truncated export had been recorded."""
     rows: list[tuple[int, dict[str, object]]] = []
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CurationError(f"{path}: file not found") from None
-    except UnicodeDecodeError as exc:
-        raise CurationError(f"{path}: not valid UTF-8 (at byte {exc.start}); re-save it as UTF-8") from None
+    text = read_text_file(path, "answers file", CurationError)
     for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("//"):
             continue
@@ -99,6 +103,9 @@ def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
         if not isinstance(value, dict):
             raise CurationError(f"{path}:{lineno}: expected a JSON object")
         rows.append((lineno, value))
+    if not rows:
+        raise CurationError(f"{path}: no answers (the file is empty, or every line is blank or a // comment); "
+                            "write one JSON answer object per line (nothing was stored)")
     return rows
 
 
@@ -141,6 +148,9 @@ def record_answers(
     two answers to one prompt in the file are an error. Skipped, and listed with the reason:
     answers about a verb, object or property the verbs / objects files do not name, and answers
     to prompts already recorded (not pending)."""
+    if prompt_id not in PROMPT_IDS:
+        raise CurationError(f"unknown prompt {prompt_id!r}; choose one of {', '.join(PROMPT_IDS)}")
+    rows = _read_answers(answers)  # before any record is read: a bad file fails first and fast
     result = CurationResult(0, 0, [])
     ready: list[tuple[str, Record]] = []
     unknown: list[str] = []  # answers about a subject the verbs / objects files do not name: skipped
@@ -165,7 +175,7 @@ def record_answers(
         pending = {c.subject: c for c in calls}
     elif prompt_id in PER_OBJECT_PROMPTS:
         pending = pending_object_calls(prompt_id, source, objects, glosses or {})
-    for lineno, row in _read_answers(answers):
+    for lineno, row in rows:
         where = f"{answers}:{lineno}"
         try:
             if prompt_id == "verb_properties" and version == "v1":

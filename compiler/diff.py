@@ -349,14 +349,19 @@ def _unknown(rule: str) -> DiffError:
 def parse_rules(rules: Iterable[str]) -> list[str]:
     """Normalize and check ``--fail-on`` rules (comma-separated values are split).
 
-    Checked up front so a typo fails loudly instead of silently never gating.
+    Checked up front so a typo fails loudly instead of silently never gating. An empty or blank
+    rule (``--fail-on "$RULE"`` with ``RULE`` unset, a stray comma) is an error too: skipping it
+    would make the gate pass having checked nothing.
     """
     parsed: list[str] = []
     for item in rules:
         for raw in item.split(","):
             rule = raw.strip().lower()
             if not rule:
-                continue
+                raise DiffError(
+                    f"empty --fail-on rule in {item!r} (an unset variable?); valid rules: "
+                    f"{', '.join(VALID_RULES)}"
+                )
             if rule in _FLAG_CHECKS:
                 parsed.append(rule)
                 continue

@@ -37,6 +37,18 @@ class OutPathError(ValueError):
     """``--out`` names something that is not ours to replace; the message says what and why."""
 
 
+class BundleWriteError(OSError):
+    """Writing the bundle at ``--out`` failed (a read-only or full folder, another build racing
+    this one): the one ``OSError`` a build may report as an output problem. Any other
+    ``OSError`` of a build is about one of its inputs, and must not be blamed on ``--out``."""
+
+    def __init__(self, cause: OSError) -> None:
+        if cause.errno is not None and cause.strerror is not None:
+            super().__init__(cause.errno, cause.strerror, cause.filename)
+        else:
+            super().__init__(str(cause))
+
+
 def _existing_bundle(path: Path) -> tuple[str, list[str]] | None:
     """``(kb name, files that are not bundle files)`` of the bundle at ``path``, or None.
 
@@ -63,6 +75,29 @@ def _existing_bundle(path: Path) -> tuple[str, list[str]] | None:
     return name, [n for n in names if n not in allowed]
 
 
+def _check_out_parents(out: Path) -> None:
+    """Refuse an ``--out`` below a file (no folder can be made there) or inside a bundle.
+
+    A bundle nested in another would be a stray file of the outer one: its rebuild would refuse
+    (or, with ``--force``, delete the inner bundle), and ``craft install`` of it would carry it.
+    """
+    absolute = Path(os.path.abspath(out))
+    for parent in absolute.parents:
+        if not os.path.lexists(parent):
+            continue
+        if not parent.is_dir():
+            raise OutPathError(
+                f"--out {out}: {parent} is a file, not a folder, so no folder can be made inside "
+                "it; choose another path (nothing was written)"
+            )
+        existing = _existing_bundle(parent)
+        if existing is not None:
+            raise OutPathError(
+                f"--out {out} is inside the bundle {existing[0]!r} at {parent}; a bundle cannot "
+                "hold another. Choose a folder outside it (nothing was written)"
+            )
+
+
 def check_out_path(
     out: Path, kb_name: str, *, force: bool = False, inputs: tuple[Path, ...] = ()
 ) -> None:
@@ -77,6 +112,7 @@ def check_out_path(
         raise OutPathError(
             f"--out {out} is a symbolic link; give the real folder path (nothing was written)"
         )
+    _check_out_parents(out)
     if not out.exists():
         return
     resolved = out.resolve()
@@ -139,8 +175,25 @@ def write_bundle(
 
     The folder gets the modes a user expects (0777/0666 less the umask, e.g. 0755/0644), not
     ``mkdtemp``'s 0700: a robot service running as another user must be able to read it.
+    An ``OSError`` while writing is raised as :class:`BundleWriteError`.
     """
     check_out_path(out, manifest.kb_name, force=force)
+    try:
+        _write_bundle(out, files, manifest, build_info, force=force)
+    except BundleWriteError:
+        raise
+    except OSError as exc:
+        raise BundleWriteError(exc) from exc
+
+
+def _write_bundle(
+    out: Path,
+    files: dict[str, bytes],
+    manifest: Manifest,
+    build_info: BuildInfo,
+    *,
+    force: bool,
+) -> None:
     out = out.resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))

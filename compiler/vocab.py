@@ -4,7 +4,9 @@ A line may carry a gloss after a tab (``name<TAB>gloss``): the sense the name is
 (``crane<TAB>a large long-necked wading bird``). Prompt v2 puts it into the object's prompt.
 
 Bad input gets a clear error naming the file and line; harmless irregularities (blank lines,
-duplicates after normalization, case) are normalized and *reported*, not silently absorbed.
+duplicates after normalization, case) are normalized and *reported*, not silently absorbed. A
+duplicate whose gloss differs from the first line's is an error: one of the two senses would be
+dropped.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
         ) from None
     except IsADirectoryError:
         raise VocabError(f"{path}: is a directory, expected a text file of {kind}") from None
+    except OSError as exc:  # unreadable: an input problem, never one of the bundle's output
+        raise VocabError(f"{path}: cannot read the {kind} file ({exc.strerror or exc})") from None
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -87,6 +91,15 @@ def read_vocabulary(path: Path, *, kind: str = "verbs") -> Vocabulary:
         if name != line:
             notes.append(f"{path}:{lineno}: {line!r} normalized to {name!r}")
         if name in seen:
+            first = glosses.get(name, "")
+            if gloss and gloss != first:
+                # two senses for one name: keeping either silently would ask in a sense the
+                # author may not have meant
+                kept = f"gloss {first!r}" if first else "no gloss"
+                raise VocabError(
+                    f"{path}:{lineno}: {name!r} again, with gloss {gloss!r}; line {seen[name]} "
+                    f"gives it {kept}. Keep one line per {kind[:-1]} with the gloss you mean"
+                )
             notes.append(f"{path}:{lineno}: duplicate of line {seen[name]} ({name!r}), ignored")
             continue
         seen[name] = lineno

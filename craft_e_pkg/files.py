@@ -1,7 +1,8 @@
 """File helpers that the compiler, the runtime and the evaluation all need, written once.
 
-``read_json`` reads a user's JSON file with one wording of its errors (missing, not JSON with
-the line); ``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
+``read_json`` reads a user's JSON file with one wording of its errors (missing, a folder,
+unreadable, not UTF-8 with the byte offset, not JSON with the line; ``read_text_file`` the same
+for any text file); ``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
 large); ``fsync_dir`` makes a rename durable (the directory entry reaches the disk, not only the
 file); ``current_umask`` reads the process umask so staged folders get the permissions a plain
 ``mkdir`` would have given them (``mkdtemp`` creates them 0o700); ``held_flock`` holds an
@@ -48,15 +49,58 @@ def fsync_dir(folder: Path) -> None:
             os.close(fd)
 
 
-def read_json(path: Path, what: str, error: type[Exception] = ValueError) -> Any:
-    """The parsed JSON of ``path`` (a ``what``, e.g. "labels file"); ``error`` (the caller's
-    input-error type) names the file and, for bad JSON, the line — no traceback for a typo."""
+def read_text_file(path: Path, what: str, error: type[Exception] = ValueError) -> str:
+    """The UTF-8 text of ``path`` (a ``what``, e.g. "labels file"), or ``error`` naming the file
+    and the problem: missing, a folder, unreadable (permissions), or not UTF-8 (with the byte
+    offset, so the user can find it). Without this, each of these surfaced as a traceback
+    (``IsADirectoryError``) or as a codec message that did not name the file."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise error(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder; give the path of the {what} itself") from None
+    except PermissionError:
+        raise error(f"{path}: cannot read the {what} (permission denied); check its permissions") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: {what} is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                    f"{exc.start}); re-save it as UTF-8") from None
+
+
+class _DuplicateKeyError(ValueError):
+    """A JSON object names one key twice (``read_json(..., unique_keys=True)``)."""
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` that refuses a key given twice in one object."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKeyError(key)
+        out[key] = value
+    return out
+
+
+def read_json(path: Path, what: str, error: type[Exception] = ValueError, *, unique_keys: bool = False) -> Any:
+    """The parsed JSON of ``path`` (a ``what``, e.g. "labels file"); ``error`` (the caller's
+    input-error type) names the file and the problem (see ``read_text_file``) and, for bad JSON,
+    the line — no traceback for a typo.
+
+    ``unique_keys``: a key given twice in one object is an error too. JSON parsers keep the last
+    one, so in a labels file ``{"carry": [...], "carry": [...]}`` the first list would be lost
+    without a word."""
+    text = read_text_file(path, what, error)
+    try:
+        return json.loads(text, object_pairs_hook=_unique_pairs if unique_keys else None)
+    except _DuplicateKeyError as exc:
+        raise error(f"{path}: key {exc.args[0]!r} appears twice in one object (only the last would be read); "
+                    "merge the two into one") from None
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    except (ValueError, RecursionError) as exc:  # an integer of > 4300 digits; nesting too deep
+        raise error(f"{path}: not usable JSON ({exc})") from None
 
 
 @contextlib.contextmanager

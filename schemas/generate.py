@@ -14,6 +14,7 @@ from pydantic import BaseModel
 
 from .v1.bundle import BuildInfo, BundleReport, Manifest
 from .v1.graph import KnowledgeGraph
+from .v1.open_world import OpenWorld
 from .v1.payloads import ObjectProperties, VerbObjects, VerbProperties
 from .v1.records import Record
 
@@ -23,6 +24,7 @@ MODELS: dict[str, type[BaseModel]] = {
     "report": BundleReport,
     "build_info": BuildInfo,
     "graph": KnowledgeGraph,
+    "open_world": OpenWorld,
     "record": Record,
     "verb_properties": VerbProperties,
     "object_properties": ObjectProperties,

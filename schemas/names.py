@@ -253,3 +253,28 @@ def normalize_verb(raw: str) -> str:
 def normalize_property(raw: str) -> str:
     """Properties are short phrases ("has bristles", "holds liquid"): lowercase, no lemma."""
     return normalize_name(raw, singularize=False)
+
+
+def is_normalized(name: str, *, singular: bool = True) -> bool:
+    """Whether ``name`` is what ``normalize_name`` gives for some input (``singular=False``: what
+    ``normalize_verb`` / ``normalize_property`` give).
+
+    Why: the runtime normalizes every name it is asked for (a verb, a scene's object), so a bundle
+    whose axes hold another spelling ("CUT", "knives") can never be asked for it. The singular
+    lemma is not idempotent ("mens" gives "men", which gives "man"), so a name counts as
+    normalized when some input gives it, not only when normalizing it again leaves it alone.
+    """
+    try:
+        if normalize_name(name, singularize=False) != name:
+            return False
+    except ValueError:
+        return False
+    if not singular:
+        return True
+    last = name.rsplit(" ", 1)[-1]
+    if _singular(last) == last:  # most names: their own lemma
+        return True
+    inputs = {last, last + "s", last + "es", *(k for k, v in _IRREGULAR.items() if v == last)}
+    if last.endswith("y"):
+        inputs.add(last[:-1] + "ies")
+    return any(_singular(word) == last for word in inputs)

@@ -98,7 +98,23 @@ def runtime_kbs_fixture(tmp_path_factory: pytest.TempPathFactory) -> RuntimeKBs:
     from craft_e.schemas.v1.bundle import Manifest, sealed
 
     manifest = json.loads((other / "manifest.json").read_text())
-    manifest["text_encoder"]["id"] = "clip-vit-b32"  # a validly sealed manifest of another space
+    manifest["text_encoder"]["id"] = "clip-vit-b32"  # a validly sealed bundle of another space
+    # the tensors record the encoder they were embedded with: relabel them too, so the copy is
+    # consistent (only the space differs), and rehash them
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save
+
+    emb_path = other / "embeddings.safetensors"
+    tensors = load_file(emb_path)
+    with safe_open(str(emb_path), framework="numpy") as handle:
+        index = json.loads((handle.metadata() or {})["index"])
+    index["encoder"] = "clip-vit-b32"
+    blob = save(tensors, metadata={"index": json.dumps(index, sort_keys=True)})
+    emb_path.write_bytes(blob)
+    import hashlib
+
+    manifest["files"]["embeddings.safetensors"] = {"sha256": hashlib.sha256(blob).hexdigest(),
+                                                   "bytes": len(blob)}
     resealed = sealed(Manifest.model_validate(manifest))
     (other / "manifest.json").write_text(json.dumps(resealed.model_dump(mode="json"), indent=1))
     w_vp, w_po = read_answers()

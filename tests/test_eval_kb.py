@@ -153,3 +153,22 @@ def test_the_committed_sim_label_sets_load_and_do_not_share_a_verb() -> None:
     dev, val = resolve_labels("sim-dev"), resolve_labels("sim-val")
     assert val.name == "sim-val" and len(val.positives) == 23
     assert not set(dev.positives) & set(val.positives)
+
+
+@pytest.mark.parametrize(("labels", "message"), [
+    ({"_objects": ["cup", "knife"], " ": ["cup"]}, "the verb name ' ' is blank"),
+    ({"_objects": ["cup", "knife"], "cut": []}, "'cut' lists no objects"),
+    ({"_objects": ["cup", "knife"], "cut": ["knife"], "Cut ": ["cup"]}, "'cut' and 'Cut ' name the same verb 'cut'"),
+    ({"_objects": "cup", "cut": ["cup"]}, '"_objects" must be a list of object names'),
+])
+def test_json_labels_refuse_what_they_would_misread(tmp_path: Path, labels: dict[str, object], message: str) -> None:
+    """As ``craft eval imagenet``'s labels: a blank verb, a verb without objects (NaN AP left out
+    of every mean) and two spellings of one verb (the second list replaced the first) are errors."""
+    path = tmp_path / "labels.json"
+    path.write_text(json.dumps(labels), encoding="utf-8")
+    with pytest.raises(KBLabelsError) as caught:
+        json_labels(path)
+    assert str(caught.value).startswith(f"{path}: {message}")
+    path.write_text('{"_objects": ["cup", "knife"], "cut": ["knife"], "cut": ["cup"]}', encoding="utf-8")
+    with pytest.raises(KBLabelsError, match="key 'cut' appears twice"):
+        json_labels(path)

@@ -68,6 +68,9 @@ CASES: list[tuple[str, Callable[[Doc], None], bool]] = [
                                       _drop(("edges", 0, "role"))(d), _drop(("directed",))(d),
                                       _drop(("multigraph",))(d), _drop(("graph",))(d)], True),
     ("graph-null", _set(("graph",), None), True),
+    ("zero-weight", _set(("edges", 0, "weight"), 0), True),
+    ("weight-above-1", _set(("edges", 0, "weight"), 1.5), False),
+    ("negative-weight", _set(("edges", 1, "weight"), -0.1), False),
     ("string-weight", _set(("edges", 0, "weight"), "0.9"), False),
     ("bool-weight", _set(("edges", 0, "weight"), True), False),
     ("null-weight", _set(("edges", 0, "weight"), None), False),
@@ -127,6 +130,19 @@ def test_a_weight_that_is_no_finite_number_is_refused_by_both(token: str) -> Non
     with pytest.raises(ValidationError) as info:
         validate_graph_json(text)
     assert "not a finite number" in graph_wire_problem(info.value)
+
+
+@pytest.mark.parametrize("weight", [5.0, -1.0])
+def test_a_weight_outside_0_1_is_named_by_both(weight: float) -> None:
+    doc = tiny()
+    doc["edges"][1]["weight"] = weight
+    said = f"'edges.1.weight': weight {weight!r} is outside [0, 1], where weights lie"
+    with pytest.raises(ValidationError) as info:
+        validate_graph_json(json.dumps(doc))
+    assert graph_wire_problem(info.value) == said
+    with pytest.raises(ValidationError) as info:
+        KnowledgeGraph.model_validate(doc)
+    assert graph_wire_problem(info.value) == said
 
 
 def test_the_fault_is_named_where_it_is() -> None:

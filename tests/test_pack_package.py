@@ -75,11 +75,15 @@ def make_bundle(out: Path, *, name: str = "tiny", version: str = "1.0.0", seed: 
         {"source": "verb:scoop", "target": "prop:concave", "weight": 0.9, "provenance": ["r1"]},
         {"source": "prop:concave", "target": "obj:spoon", "weight": 0.9, "provenance": ["r3"]},
     ]
+    # every node the edges and the manifest name (verification checks the graph against both)
+    nodes = [{"id": f"{prefix}:{n}", "kind": kind, "name": n}
+             for prefix, kind, names in (("verb", "verb", VERBS), ("prop", "property", PROPS),
+                                         ("obj", "object", OBJECTS)) for n in names]
     graph = {
         "directed": True,
         "multigraph": False,
         "graph": {"seed": seed},
-        "nodes": [],
+        "nodes": nodes,
         "edges": edges,
     }
     energy = io.BytesIO()

@@ -16,8 +16,10 @@ it read, kept and dropped: ConceptNet's coverage of tool use is thin, and the re
 
 from __future__ import annotations
 
+import codecs
 import gzip
 import json
+import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -138,12 +140,82 @@ def scaled_weight(weight: float, scale: float = DEFAULT_WEIGHT_SCALE) -> float:
 # local files
 
 
-def _open_text(path: Path) -> TextIO:
+_GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _check_file(path: Path) -> None:
+    """``path`` is an existing regular file, or an error that says what it is instead."""
+    if path.is_dir():
+        raise ConceptNetInputError(
+            f"{path}: is a folder, not a ConceptNet file; name the file itself (--conceptnet "
+            "csv:<assertions.csv[.gz]>, or omcs:<folder> for a folder of OMCS files)"
+        )
     if not path.is_file():
         raise ConceptNetInputError(f"{path}: file not found")
+
+
+def _open_text(path: Path) -> TextIO:
+    _check_file(path)
     if path.suffix == ".gz":
         return gzip.open(path, "rt", encoding="utf-8", newline="\n")
     return path.open("r", encoding="utf-8", newline="\n")
+
+
+def _not_text(path: Path, where: str) -> ConceptNetInputError:
+    """The error for a file whose bytes are not UTF-8 text (a gzip without ``.gz``: say so)."""
+    try:
+        with path.open("rb") as handle:
+            gzipped = handle.read(2) == _GZIP_MAGIC
+    except OSError:
+        gzipped = False
+    hint = ("it is gzip-compressed: name it with a .gz suffix" if gzipped and path.suffix != ".gz"
+            else "a ConceptNet file is UTF-8 text (or .gz of it)")
+    return ConceptNetInputError(f"{where}: not valid UTF-8 text; {hint}")
+
+
+def _text_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """``(line number, line)`` of a local ConceptNet file, with every read failure turned into
+    an error naming the file (a bare codec, gzip or I/O message would name nothing)."""
+    lineno = 0
+    try:
+        with _open_text(path) as handle:
+            for lineno, line in enumerate(handle, start=1):
+                yield lineno, line
+    except UnicodeDecodeError:
+        # text is decoded in chunks, so the bad byte lies somewhere after the last line read
+        raise _not_text(path, f"{path}: past line {lineno}" if lineno else str(path)) from None
+    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:
+        raise ConceptNetInputError(
+            f"{path}: not a readable gzip file ({exc}); re-download it, or drop the .gz suffix "
+            "if it is plain text"
+        ) from None
+    except OSError as exc:
+        raise ConceptNetInputError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+
+
+def check_local_file(path: Path) -> None:
+    """Read the head of a local ConceptNet file (before a build's other work): a wrong path, a
+    folder, a file that is not gzip or not UTF-8 text fails here, naming the file."""
+    _check_file(path)
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(64 * 1024)
+        if path.suffix == ".gz":
+            if head[:2] != _GZIP_MAGIC:
+                raise ConceptNetInputError(
+                    f"{path}: not a gzip file, though named .gz; re-download it, or drop the .gz "
+                    "suffix if it is plain text"
+                )
+            with gzip.open(path, "rb") as unzipped:
+                head = unzipped.read(64 * 1024)
+    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:
+        raise ConceptNetInputError(f"{path}: not a readable gzip file ({exc}); re-download it") from None
+    except OSError as exc:
+        raise ConceptNetInputError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        codecs.getincrementaldecoder("utf-8")().decode(head, final=False)
+    except UnicodeDecodeError:
+        raise _not_text(path, str(path)) from None
 
 
 def read_omcs(
@@ -153,11 +225,10 @@ def read_omcs(
     """True facts (label 1) of OMCS-format files, weight 1.0; malformed lines are errors."""
     stats = Counter() if stats is None else stats
     for path in paths:
-        with _open_text(path) as handle:
-            for lineno, line in enumerate(handle, start=1):
-                fact = _omcs_line(path, lineno, line, stats, relations)
-                if fact is not None:
-                    yield fact
+        for lineno, line in _text_lines(path):
+            fact = _omcs_line(path, lineno, line, stats, relations)
+            if fact is not None:
+                yield fact
 
 
 def _omcs_line(
@@ -192,11 +263,10 @@ def read_assertions_csv(
     filters, so the full 34M-line dump is read in one pass without holding it in memory.
     """
     stats = Counter() if stats is None else stats
-    with _open_text(path) as handle:
-        for lineno, line in enumerate(handle, start=1):
-            fact = _csv_line(path, lineno, line, stats, relations, weight_scale)
-            if fact is not None:
-                yield fact
+    for lineno, line in _text_lines(path):
+        fact = _csv_line(path, lineno, line, stats, relations, weight_scale)
+        if fact is not None:
+            yield fact
 
 
 def _csv_line(
@@ -579,6 +649,20 @@ def parse_spec(spec: str) -> Spec:
         f"unknown ConceptNet source {spec!r}; use 'omcs' (the shared OMCS files, default), "
         f"'csv:<assertions.csv[.gz]>' or 'api[:<base_url>]'"
     )
+
+
+def local_files(spec: str) -> list[Path]:
+    """The local files a ``--conceptnet`` spec reads (none for the API)."""
+    parsed = parse_spec(spec)
+    if parsed.kind == "omcs":
+        return [Path(parsed.location) / name for name in OMCS_FILES]
+    return [Path(parsed.location)] if parsed.kind == "csv" else []
+
+
+def check_spec(spec: str) -> None:
+    """Check a ``--conceptnet`` spec and the head of every file it names, before a build's work."""
+    for path in local_files(spec):
+        check_local_file(path)
 
 
 def conceptnet_draft(

@@ -288,12 +288,26 @@ def read_edits(path: Path, text: str, locator: _Locator) -> list[Edit]:
     return sorted(edits, key=lambda e: (e.line, EDIT_KINDS.index(e.kind), e.index))
 
 
+def read_overrides_bytes(path: Path) -> bytes:
+    """The bytes of the ``--overrides`` file; a missing file, a folder or an unreadable file is
+    an :class:`OverridesError` naming it (a bare ``OSError`` would read as an output problem)."""
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise OverridesError(f"{path}: overrides file not found (--overrides)") from None
+    except IsADirectoryError:
+        raise OverridesError(
+            f"{path}: is a folder; --overrides takes a TOML file of edits, e.g. edits.toml"
+        ) from None
+    except OSError as exc:
+        raise OverridesError(
+            f"{path}: cannot read the overrides file ({exc.strerror or exc}) (--overrides)"
+        ) from None
+
+
 def apply_overrides(draft: KnowledgeDraft, path: Path) -> KnowledgeDraft:
     """Apply the edits of ``path`` to ``draft`` in place (returned for chaining)."""
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise OverridesError(f"{path}: overrides file not found") from None
+    data = read_overrides_bytes(path)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError:

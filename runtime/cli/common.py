@@ -79,6 +79,25 @@ def read_names(path: Path, what: str) -> list[str]:
         fail(f"{path}: cannot read the {what} ({exc})")
 
 
+def read_some_names(path: Path, what: str, option: str) -> list[str]:
+    """:func:`read_names` of a file an option names (``--vocab``, ``--classes``) that must name
+    at least one thing, or exit 2 naming the option and the file. Commands call it before any
+    bundle or model loads: an empty file used to fail only after the KB (or ~40 s of image
+    embedding) with "the object vocabulary is empty" and no file name; a folder or a non-UTF-8
+    file is named too (``files.read_text_file``)."""
+    from ...files import read_text_file
+
+    try:
+        read_text_file(path, what)
+    except ValueError as exc:
+        fail(f"{option} {exc}")
+    names = read_names(path, what)
+    if not names:
+        fail(f"{option} {path}: the {what} names nothing (empty, or only blank and # lines); "
+             "write one name per line")
+    return names
+
+
 def _checked_output(value: Path | None, example_suffix: str) -> Path | None:
     problem = None if value is None else output_file_problem(value, example_suffix)
     if problem is not None:

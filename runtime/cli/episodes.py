@@ -21,6 +21,7 @@ from .common import checked_jobs, checked_markdown_file, checked_output_file, er
 
 if TYPE_CHECKING:
     from ..evaluation.methods import MethodSpec
+    from ..evaluation.sim_eval import SimLabels
     from ..sim.env import EnvConfig
     from ..sim.pipeline import PipelineConfig
 
@@ -133,15 +134,34 @@ def split_names(values: list[str] | None) -> list[str] | None:
     return [n.strip() for v in values for n in v.split(",") if n.strip()]
 
 
-def check_labels(path: Path) -> None:
-    """Exit 2 on a labels file that does not parse, before any model loads or a progress bar
-    is drawn (the evaluation reads it again; it is a few lines)."""
+def check_labels(path: Path) -> SimLabels:
+    """The sim labels, or exit 2 on a labels file that does not parse, before any model loads
+    or a progress bar is drawn (an evaluation reads it again; it is a few lines)."""
     from ..evaluation.sim_eval import LabelsError, load_sim_labels
 
+    if looks_like_json(path):
+        fail(f"{path}: sim labels are a CSV, not JSON (the {{\"verb\": [\"object\", ...]}} JSON is the format of "
+             "`craft eval imagenet` and `craft eval kb`): a header line `verb,object`, then one affording pair "
+             "per line, e.g. `cut,knife`; the object is a sim asset id or plain name (see "
+             "artifacts/labels/sim_dev_labels.csv)")
     try:
-        load_sim_labels(path)
+        return load_sim_labels(path)
     except LabelsError as exc:
         fail(str(exc))
+
+
+def looks_like_json(path: Path) -> bool:
+    """Is ``path`` a JSON file given where a sim labels CSV belongs (its name ends in ``.json``,
+    or its text starts with ``{`` or ``[``)? Read as CSV, it failed on a fragment of its first
+    line (``'"sci' is neither a sim asset id...``) that did not say the format was wrong."""
+    if path.suffix.lower() == ".json":
+        return True
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(4096)
+    except OSError:  # missing, a folder, unreadable: the labels reader names the problem
+        return False
+    return head.lstrip(b"\xef\xbb\xbf \t\r\n")[:1] in (b"{", b"[")
 
 
 def scene_methods(methods: list[str] | None, kb: Path | None, kb_dir: Path | None,

@@ -48,14 +48,16 @@ def eval_imagenet(
 ) -> None:
     """Nguyen et al.'s ImageNet functional-grounding protocol: every method on the same episodes."""
     from ..evaluation.common import emit_report
-    from ..evaluation.imagenet import LabelsError, evaluate_imagenet
-    from ..evaluation.methods import NoMethodToRunError
+    from ..evaluation.imagenet import evaluate_imagenet
+    from ..kb.bundle import BundleError
 
     given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
                             beta, gamma, sense_weight, conse_temperature)
     try:
         report = evaluate_imagenet(labels, methods=given.methods, episodes=episodes, seed=seed, pool=given.pool,
                                    cache_dir=given.cache_dir, settings=given.settings, threads=threads)
-    except (LabelsError, FileNotFoundError, NoMethodToRunError) as exc:
+    # ValueError: LabelsError and NoMethodToRunError, and what a bundle that loads but cannot ground
+    # raises from the Grounder (e.g. a malformed open_world.json), which names the file and the fix
+    except (ValueError, FileNotFoundError, BundleError) as exc:
         fail(str(exc))
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)

@@ -29,27 +29,23 @@ def eval_kb(
 ) -> None:
     """Knowledge alone: AP, AUC and 5-candidate top-1 of E_aff per verb, chance and oracle rows,
     and leave-verbs-out choice of the E_aff form."""
-    from ..evaluation.common import emit_report, read_name_list
+    from ..evaluation.common import emit_report
     from ..evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
     from ..evaluation.methods import NoMethodToRunError
     from ..grounding.energies import ENERGY_FORMS, check_energy_form
-    from .common import check_named_bundles, err, fail
+    from ..kb.bundle import BundleError
+    from .common import check_named_bundles, err, fail, read_some_names
 
     check_named_bundles(kb)
     try:
         forms = [check_energy_form(f) for f in energy_form] if energy_form else list(ENERGY_FORMS)
     except ValueError as exc:
         fail(f"--energy-form: {exc}")
-    candidates = None
-    if objects is not None:
-        try:
-            candidates = read_name_list(objects)
-        except OSError as exc:
-            fail(f"{objects}: cannot read the objects file ({exc})")
+    candidates = read_some_names(objects, "objects file", "--objects") if objects is not None else None
     try:
         report = evaluate_kbs(kb or DEFAULT_KBS, labels or ["zhu", "sim-dev"], forms=forms,
                               episodes_per_verb=episodes, seed=seed, folds=folds, objects=candidates)
-    except (KBLabelsError, FileNotFoundError, NoMethodToRunError) as exc:
+    except (KBLabelsError, FileNotFoundError, NoMethodToRunError, BundleError) as exc:
         fail(str(exc))
     emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
                 lambda msg: err.print(msg, highlight=False, markup=False))

@@ -26,7 +26,7 @@ from .common import (
     grounding_settings,
     note,
     out,
-    read_names,
+    read_some_names,
 )
 from .episodes import LookalikesOpt
 
@@ -35,12 +35,18 @@ if TYPE_CHECKING:
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:
-    """``"x,y,w,h"`` in pixels -> a 4-tuple; anything else is a usage error naming the text."""
+    """``"x,y,w,h"`` in pixels -> a 4-tuple; anything else is a usage error naming the text.
+
+    ``float`` reads ``nan`` and ``inf``: a NaN box would be ranked (``box nan, nan, ...``) and
+    written into ``--json`` as ``NaN``, an infinite one overflows the crop, so both are refused
+    here, as ``read_rois_file`` refuses them in a ROIs file."""
     parts = [p for p in text.replace(" ", "").split(",") if p]
     try:
         values = tuple(float(p) for p in parts)
     except ValueError:
         values = ()
+    if len(values) == 4 and not all(math.isfinite(v) for v in values):
+        raise ValueError(f"--box {text!r}: x,y,w,h must be finite numbers of pixels (not nan or inf)")
     if len(values) != 4 or values[2] <= 0 or values[3] <= 0:
         raise ValueError(f"--box {text!r}: expected x,y,w,h in pixels with w, h > 0")
     return values[0], values[1], values[2], values[3]
@@ -125,7 +131,7 @@ def ground(
         fail("--verb is blank; name the action, e.g. --verb cut")
     if (box is None) == (rois is None):
         fail("give the ROIs either as --box x,y,w,h (repeatable) or as --rois FILE")
-    vocabulary = read_names(vocab, "vocabulary") if vocab is not None else None
+    vocabulary = read_some_names(vocab, "vocabulary", "--vocab") if vocab is not None else None
     settings = grounding_settings(alpha=alpha, beta=beta, gamma=gamma, temperature=temperature,
                                   aff_mode=aff_mode, aff_norm=aff_norm, energy_form=energy_form, open_vocab=open_vocab,
                                   vocabulary=vocabulary, lookalikes=lookalikes)

@@ -1,8 +1,9 @@
 """``craft install`` / ``craft rollback`` / ``craft installed``: thin commands over ``install.py``.
 
 Exit codes: 0 ok; 1 a package or installed version failed verification (untrusted signer,
-tampered, damaged); 2 bad usage (missing file, busy or foreign install folder, nothing to roll
-back to, an older version without --allow-downgrade). The runtime CLI never imports the compiler.
+tampered, damaged); 2 bad usage (missing file, a --trusted-key that is no public key, a missing,
+busy or foreign install folder, nothing to roll back to, an older version without
+--allow-downgrade). The runtime CLI never imports the compiler.
 """
 
 from __future__ import annotations
@@ -17,8 +18,23 @@ from rich.markup import escape
 
 from .common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, fail, out
 
+
+def _folder(text: str) -> Path:
+    """``--into``'s parser: an empty value is refused, not read as the working directory (a
+    ``--into "$UNSET"`` would otherwise install into wherever the command ran)."""
+    if not text.strip():
+        raise typer.BadParameter("empty path; give the install folder, e.g. /opt/craft-e/kb")
+    return Path(text)
+
+
 IntoOpt = Annotated[
-    Path, typer.Option("--into", help="Install folder (holds versions/, current, previous).")
+    Path,
+    typer.Option(
+        "--into",
+        parser=_folder,
+        help="Install folder (holds versions/, current, previous): a new or empty folder, or "
+        "one `craft install` made; never a bundle folder.",
+    ),
 ]
 
 
@@ -41,7 +57,7 @@ def install_cmd(
 ) -> None:
     """Verify a signed package and make it the current KB (the old one becomes previous)."""
     from ..kb.install import InstallError, install
-    from ..kb.package import DestinationError, PackageError
+    from ..kb.package import DestinationError, PackageError, TrustedKeyError
 
     try:
         result = install(
@@ -51,7 +67,7 @@ def install_cmd(
             prune=not keep_all,
             allow_downgrade=allow_downgrade,
         )
-    except (InstallError, DestinationError) as exc:
+    except (InstallError, DestinationError, TrustedKeyError) as exc:  # bad --into / --trusted-key
         fail(str(exc), EXIT_BAD_INPUT)
     except PackageError as exc:
         missing = not package.is_file()
@@ -94,6 +110,9 @@ def installed_cmd(
     """List installed versions, marking current (*) and previous (-)."""
     from ..kb.install import InstallError, installed
 
+    if not into.exists() and not into.is_symlink():  # a typo, like `rollback` says: not "nothing"
+        fail(f"{into}: no such install folder; check --into (or run `craft install` first)",
+             EXIT_BAD_INPUT)
     try:
         versions = installed(into, verify=verify)
     except InstallError as exc:

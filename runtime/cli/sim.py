@@ -29,8 +29,8 @@ def demo(
     target: Annotated[str | None, typer.Option(help="Target asset id or plain name among the verb's pairs.")] = None,
     episode: Annotated[str | None, typer.Option(
         help="Replay one episode of `craft eval sim` by its id, verb/object/layout as in the results JSON, "
-             "e.g. cut/knife/1: the same scene, here with a figure and a GIF (add --seed N for a run "
-             "with --seed N).")] = None,
+             "e.g. cut/knife/1: the same scene, here with a figure and a GIF "
+             "(add --seed N for a run with --seed N).")] = None,
     grasp: Annotated[str, typer.Option(help="grconvnet | ggcnn | ggcnn2 | antipodal | oracle.")] = "grconvnet",
     rois: Annotated[str, typer.Option(help="predicted | oracle.")] = "predicted",
     gif_every: Annotated[int, typer.Option(min=1, help="Simulation steps between GIF frames.")] = 24,
@@ -60,11 +60,9 @@ def demo(
     from ...paths import KB_DIR, SIM_DEV_LABELS
     from ..evaluation.methods import MethodSpec, build_grounders, energy_weights
     from ..evaluation.sim_eval import (
-        LabelsError,
         SimLabels,
         default_encoder,
         episode_record,
-        load_sim_labels,
         make_episode_specs,
     )
     from ..grounding.grounder import normalize_verb_name
@@ -81,10 +79,7 @@ def demo(
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
                                           active_look=active_look, in_view=in_view)
-    try:
-        all_labels = load_sim_labels(labels or SIM_DEV_LABELS)
-    except (ValueError, LabelsError) as exc:
-        fail(str(exc))
+    all_labels = ep.check_labels(labels or SIM_DEV_LABELS)
     name = normalize_verb_name(verb)
     pairs = [p for p in all_labels.pairs if p.verb == name]
     if not pairs:
@@ -167,10 +162,10 @@ def _evaluation_episode(
         fail(f"--episode {episode}: {obj!r} is not among {verb!r}'s objects in {labels.path} "
              f"({', '.join(p.object for p in pairs)})")
     layout = int(layout_text)
-    specs = make_episode_specs(SimLabels(labels.path, (pair,), labels.affording), layouts=layout + 1,
-                               seed=seed, env_config=env_config)
-    assert specs[layout].id == episode, (specs[layout].id, episode)
-    return specs[layout]
+    (spec,) = make_episode_specs(SimLabels(labels.path, (pair,), labels.affording), seed=seed,
+                                 env_config=env_config, only_layout=layout)
+    assert spec.id == episode, (spec.id, episode)
+    return spec
 
 
 def collision_meshes(

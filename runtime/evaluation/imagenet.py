@@ -131,24 +131,40 @@ def load_dataset(root: Path | None = None) -> ImageNetData:
 
 def load_labels(path: Path, classes: Sequence[str]) -> dict[str, list[str]]:
     """``{"verb": ["object", ...]}`` with names normalized; unknown objects are an error that
-    lists close matches (a typo would silently turn a positive into a negative)."""
-    raw = read_json(path, "labels file", LabelsError)
+    lists close matches (a typo would silently turn a positive into a negative).
+
+    Also errors, each of which used to run (or print an empty table) as if the file were right:
+    a blank verb name; a verb with no objects (no episode can show an affording class); and two
+    keys naming one verb (``"carry"`` and ``"CARRY"``, or one key twice), where the second list
+    silently replaced the first."""
+    raw = read_json(path, "labels file", LabelsError, unique_keys=True)
     if not isinstance(raw, dict):
         raise LabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
     known = set(classes)
     labels: dict[str, list[str]] = {}
+    spelled: dict[str, str] = {}  # normalized verb -> the key that named it first
     for verb, objects in raw.items():
         if str(verb).startswith("_"):
             continue
+        name = normalize_verb_name(verb)
+        if not name:
+            raise LabelsError(f"{path}: the verb name {verb!r} is blank; name the action, e.g. \"cut\"")
+        if name in spelled:
+            raise LabelsError(f"{path}: {spelled[name]!r} and {verb!r} name the same verb {name!r}; "
+                              "merge their objects under one key")
+        spelled[name] = verb
         if not isinstance(objects, list) or not all(isinstance(o, str) for o in objects):
             raise LabelsError(f"{path}: {verb!r}: expected a list of object names")
+        if not objects:
+            raise LabelsError(f"{path}: {verb!r} lists no objects; every episode shows an affording class, "
+                              "so list the classes that afford it (or drop the verb)")
         names = list(dict.fromkeys(_norm(o) for o in objects))
         unknown = [o for o in names if o not in known]
         if unknown:
             close = {o: difflib.get_close_matches(o, list(known), n=3) for o in unknown}
             raise LabelsError(f"{path}: {verb!r} names objects outside the benchmark: "
                               + "; ".join(f"{o!r} (close: {', '.join(c) or 'none'})" for o, c in close.items()))
-        labels[normalize_verb_name(verb)] = names
+        labels[name] = names
     if not labels:
         raise LabelsError(f"{path}: no verbs")
     return labels
@@ -222,6 +238,15 @@ def make_episodes(
             relevant = np.isin(classes, pos_arr)  # [E, 5]
             sets.append(EpisodeSet(verb, setting, images, relevant))
     return sets, skipped
+
+
+def no_episode_message(labels_path: Path, skipped: Sequence[SkippedVerb], pool: Sequence[str] | None) -> str:
+    """Why no verb of ``labels_path`` forms an episode in either setting, verb by verb."""
+    where = f"the {len(pool)} --classes" if pool is not None else "the benchmark's classes"
+    reasons = "; ".join(f"{s.verb} ({s.setting}): {s.reason}" for s in skipped)
+    return (f"{labels_path}: no episode can be formed from {where}: an episode shows {CANDIDATES} distinct "
+            f"classes, 1 (single-affordance) or {MULTI_AFFORDING[0]}-{MULTI_AFFORDING[-1]} (multi-affordance) "
+            f"of them affording the verb — {reasons}; label more classes or widen --classes")
 
 
 @dataclass
@@ -309,6 +334,8 @@ def evaluate_imagenet(
         vocabulary = list(pool) if pool is not None else [
             _norm(name) for name in read_artifact_names(VOCAB_DIR / "imagenet_objects.txt", "the ImageNet objects vocabulary")]
     sets, skipped_verbs = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
+    if not sets:  # before any model loads: otherwise an empty table and exit 0 after the work
+        raise LabelsError(no_episode_message(labels_path, skipped_verbs, pool))
 
     runnable, skipped = load_methods(list(methods) if methods is not None else default_methods(kb))
     # every method reads the names of p(o | r) in the vocabulary's senses (methods.build_grounders)

@@ -267,8 +267,13 @@ def make_episode_specs(
     max_pairs: int | None = None,
     env_config: EnvConfig | None = None,
     min_gap: float | None = MIN_GAP,
+    only_layout: int | None = None,
 ) -> list[EpisodeSpec]:
     """``layouts`` scenes per pair (the first ``max_pairs`` pairs), in label-file order.
+
+    ``only_layout``: just that layout of each pair (``layouts`` is then ignored). Each layout is
+    drawn from (seed, verb, object, layout) alone, so it is the same scene the full run builds,
+    at the cost of one build however large its index (``craft sim demo --episode v/o/N``).
 
     A draw is kept if its footprints can be placed and, unless ``min_gap`` is None, the settled
     scene keeps every two objects ``min_gap`` apart, and (``PlacementConfig.whole_in_view``) the
@@ -281,7 +286,7 @@ def make_episode_specs(
     specs: list[EpisodeSpec] = []
     for pair in pairs:
         excluded = labels.affording[pair.verb]
-        for layout in range(layouts):
+        for layout in range(layouts) if only_layout is None else (only_layout,):
             rng = episode_rng(seed, pair.verb, pair.object, layout)
             target = pair.assets[int(rng.integers(len(pair.assets)))]
             target_name = catalog[target].name

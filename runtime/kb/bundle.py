@@ -1,14 +1,13 @@
 """Loading a KB bundle on the robot: verify first, then use.
 
 ``load_bundle`` checks the manifest's schema version, every file's sha256 and size, the content
-hash, and that the bundle's text encoder is the one this runtime embeds with; any mismatch is a
-``BundleError`` naming the file and the fix. It imports neither the compiler, httpx nor rdflib.
+hash, that the bundle's text encoder is the one this runtime embeds with, and that the files
+agree with each other and the manifest (``content.py``); any mismatch is a ``BundleError``
+naming the file and the fix. It imports neither the compiler, httpx nor rdflib.
 """
 
 from __future__ import annotations
 
-import io
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -25,12 +24,12 @@ from ...schemas.v1.bundle import (
     Manifest,
 )
 from ...schemas.v1.graph import KnowledgeGraph
-from ...schemas.v1.graph_wire import GraphWire, graph_wire_problem, validate_graph_json
-from ..encoders.conse import imagenet_class_index
-from .colours import COLOURS_FILE, TypicalColours, parse_colours
+from ...schemas.v1.graph_wire import GraphWire, graph_wire_problem
+from .colours import TypicalColours
+from .content import check_content, read_content
 from .graph_index import GraphIndex
-from .lookalikes import LOOKALIKES_FILE, Lookalikes, parse_lookalikes
-from .sizes import SIZES_FILE, SizesError, TypicalSize, parse_sizes
+from .lookalikes import Lookalikes
+from .sizes import TypicalSize
 from .verify import (
     MAX_FILE_BYTES,
     MAX_MANIFEST_BYTES,
@@ -38,13 +37,14 @@ from .verify import (
     BundleError,
     read_manifest,
     read_regular_file,
+    verify_digests,
     verify_files,
 )
 
 # Re-exported: callers that load bundles need the verification helpers under one name.
 __all__ = ["MAX_FILE_BYTES", "MAX_MANIFEST_BYTES", "SUPPORTED_SCHEMA_VERSIONS", "Bundle", "BundleError",
            "PathStep", "check_content", "load_bundle", "parse_graph", "read_manifest", "read_regular_file",
-           "verify_files"]
+           "verify_digests", "verify_files"]
 
 FloatArray = npt.NDArray[np.float32]
 @dataclass(frozen=True)
@@ -129,9 +129,9 @@ def load_bundle(
     default minilm-l6-v2 with its pinned weights hash): embeddings from another space would
     silently produce wrong cosines. A file is a packed bundle: it is used only if signed by one
     of ``trusted_keys`` (see ``runtime/kb/package.py``), verified and unpacked privately first.
+    Every file is then parsed once and checked against the others (``content.read_content``,
+    the checks ``craftc pack`` and ``craft install`` run too).
     """
-    from safetensors.numpy import load as load_safetensors
-
     from ..encoders.text import MINILM_ID, MINILM_SHA256
 
     folder = Path(path)
@@ -140,7 +140,8 @@ def load_bundle(
             folder, trusted_keys, check_encoder=check_encoder, encoder_id=encoder_id
         )
     manifest = read_manifest(folder)
-    data = verify_files(folder, manifest)
+    data = verify_digests(folder, manifest)
+    want: str | None = None
     if check_encoder:
         want = encoder_id or MINILM_ID
         enc = manifest.text_encoder
@@ -150,82 +151,11 @@ def load_bundle(
                 f"(weights {enc.weights_sha256[:12]}), this runtime uses {want}; rebuild the "
                 "bundle with the runtime's encoder"
             )
-    try:
-        graph_data = validate_graph_json(data["graph.json"])
-    except ValidationError as exc:  # malformed JSON, or a constraint of the graph broken
-        raise BundleError(f"{folder / 'graph.json'}: {graph_wire_problem(exc)}; rebuild the bundle") from None
-    try:
-        energy = np.load(io.BytesIO(data["affordance_energy.npy"]), allow_pickle=False)
-        embeddings = {
-            k: np.asarray(v, dtype=np.float32)
-            for k, v in load_safetensors(data["embeddings.safetensors"]).items()
-        }
-        report = BundleReport.model_validate_json(data["report.json"])
-        open_world = json.loads(data["open_world.json"]) if "open_world.json" in data else None
-    except (ValueError, ValidationError, KeyError, RecursionError) as exc:
-        raise BundleError(
-            f"{folder}: a bundle file does not parse ({exc}); rebuild the bundle"
-        ) from None
-    check_content(folder, manifest, energy, embeddings)
-    if open_world is not None and not isinstance(open_world, dict):
-        raise BundleError(f"{folder / 'open_world.json'}: not a JSON object; rebuild the bundle")
-    try:
-        sizes = parse_sizes(folder, data[SIZES_FILE], manifest.objects) if SIZES_FILE in data else {}
-        colours = (parse_colours(folder, data[COLOURS_FILE], manifest.objects)
-                   if COLOURS_FILE in data else {})
-        lookalikes = (parse_lookalikes(folder, data[LOOKALIKES_FILE], manifest.objects,
-                                       imagenet_class_index().keys())
-                      if LOOKALIKES_FILE in data else {})
-    except SizesError as exc:  # ColoursError and LookalikesError are ones
-        raise BundleError(str(exc)) from None
-    return Bundle(folder, manifest, graph_data, energy.astype(np.float32, copy=False), embeddings, report, open_world,
-                  sizes, colours, lookalikes)
-
-
-def check_content(
-    folder: Path,
-    manifest: Manifest,
-    energy: npt.NDArray[Any],
-    embeddings: dict[str, FloatArray],
-) -> None:
-    """Values and shapes a grounder relies on; consistent hashes do not make content sane.
-
-    A bundle written by a buggy or hostile tool can hash consistently and still hold NaN, a
-    tensor of another width than the text encoder's, or a graph whose weights are strings:
-    the grounder would then crash mid-request or rank by NaN. Each is refused here, naming
-    the file and the fault.
-    """
-    v, o = len(manifest.verbs), len(manifest.objects)
-    if energy.shape != (v, o):
-        raise BundleError(
-            f"{folder / 'affordance_energy.npy'}: shape {energy.shape}, manifest says ({v}, {o})"
-        )
-    if energy.dtype.kind != "f" or not np.isfinite(energy).all():
-        raise BundleError(
-            f"{folder / 'affordance_energy.npy'}: holds NaN, infinite or non-float values; "
-            "rebuild the bundle"
-        )
-    dim = manifest.text_encoder.dim
-    for key, rows in (
-        ("verb", v),
-        ("verb_query", v),
-        ("object", o),
-        ("property", len(manifest.properties)),
-    ):
-        if key not in embeddings or embeddings[key].ndim != 2 or embeddings[key].shape[0] != rows:
-            raise BundleError(
-                f"{folder / 'embeddings.safetensors'}: tensor {key!r} missing or not {rows} rows"
-            )
-        if embeddings[key].shape[1] != dim:
-            raise BundleError(
-                f"{folder / 'embeddings.safetensors'}: tensor {key!r} is {embeddings[key].shape[1]} "
-                f"wide, the manifest's text encoder embeds into {dim}; rebuild the bundle"
-            )
-        if not np.isfinite(embeddings[key]).all():
-            raise BundleError(
-                f"{folder / 'embeddings.safetensors'}: tensor {key!r} holds NaN or infinite "
-                "values; rebuild the bundle"
-            )
+    # the caller's own encoder (``encoder_id``), which it just matched, counts as a known space
+    content = read_content(folder, manifest, data, text_space=want)
+    return Bundle(folder, manifest, content.graph, content.energy.astype(np.float32, copy=False),
+                  content.embeddings, content.report, content.open_world, content.sizes,
+                  content.colours, content.lookalikes)
 
 
 def parse_graph(folder: Path, raw: Any) -> KnowledgeGraph:
@@ -260,8 +190,11 @@ def _load_packed(
         raise BundleError(f"{path}: is a file, neither a bundle folder nor a packed bundle (.craft); "
                           "give the bundle's folder (the one holding manifest.json) or a .craft file")
     if trusted_keys is None:
-        raise PackageError(f"{path}: is a packed bundle, and no trusted keys were given; pass "
-                           "trusted_keys=[<craft-signing.pub>] (or --trusted-key) to verify its signer")
+        raise PackageError(f"{path}: is a packed bundle (.craft), and no trusted keys were given to "
+                           "verify its signer; pass the signer's craft-signing.pub with --trusted-key "
+                           "(craftc validate/diff/explain, craft ground/serve) or trusted_keys=[...] "
+                           "(Python), or `craft install --trusted-key KEY` it and give the installed "
+                           "folder")
     with unpacked(path, trusted_keys) as (folder, _):
         try:
             bundle = load_bundle(folder, check_encoder=check_encoder, encoder_id=encoder_id)

@@ -187,6 +187,61 @@ def _finish_rollback(into: Path) -> None:
     fsync_dir(into)
 
 
+#: the names ``craft install`` and ``craft rollback`` make directly in ``into``
+_INSTALL_NAMES = frozenset({VERSIONS, CURRENT, PREVIOUS, LOCK, ROLLBACK_JOURNAL})
+
+
+def _as_folder(into: Path | str) -> Path:
+    """``into`` as a path; an empty one is refused (``Path("")`` would silently mean the working
+    directory, so ``--into "$UNSET"`` would install into wherever the command ran)."""
+    if not str(into).strip():
+        raise InstallError("the install folder (--into) is empty; give a folder path, e.g. "
+                           "/opt/craft-e/kb (nothing was written)")
+    return Path(into)
+
+
+def check_install_root(into: Path) -> None:
+    """Refuse an ``into`` that ``craft install`` would write into but that is not its own.
+
+    An install folder is one of: a path that does not exist yet (created), an empty folder, a
+    folder holding only the names install makes (``versions/``, ``current``, ``previous``,
+    ``.lock``, ``.rollback``, its temporary links), or one with install's layout (``versions/``
+    beside ``.lock`` or a ``current`` link; a person's notes beside them are left alone). A KB
+    bundle folder (``manifest.json``: a rebuild of it would refuse the extra files) and any
+    other folder with content are refused; nothing is ever removed to make room.
+    """
+    if not into.exists():
+        if into.is_symlink():
+            raise InstallError(f"{into}: is a dangling symbolic link; give a real folder "
+                               "(nothing was written)")
+        return
+    if not into.is_dir():
+        raise InstallError(f"{into}: is a file, not an install folder; check --into "
+                           "(nothing was written)")
+    try:
+        names = sorted(entry.name for entry in into.iterdir())
+    except OSError as exc:
+        raise InstallError(f"{into}: cannot list it ({exc.strerror or exc}); check --into") from None
+    if "manifest.json" in names:
+        raise InstallError(
+            f"{into}: is a KB bundle folder (it has manifest.json), not an install folder; "
+            "give --into a new or empty folder, e.g. /opt/craft-e/kb (nothing was written)"
+        )
+    foreign = [n for n in names if n not in _INSTALL_NAMES and not _TEMP_LINK_NAME.match(n)]
+    if not foreign:
+        return
+    layout = (into / VERSIONS).is_dir() and not (into / VERSIONS).is_symlink() and (
+        (into / LOCK).is_file() or (into / CURRENT).is_symlink())
+    if layout:
+        return
+    shown = ", ".join(foreign[:5]) + (" ..." if len(foreign) > 5 else "")
+    raise InstallError(
+        f"{into}: is a folder with other content ({shown}) and no install made by "
+        "`craft install` (versions/, current); give --into a new or empty folder, or an "
+        "existing install folder (nothing was written)"
+    )
+
+
 def _semver(text: str) -> tuple[int, ...]:
     return tuple(int(p) for p in text.split("."))
 
@@ -222,7 +277,8 @@ def install(
     folder replaces it. A lower ``kb_version`` of the current KB is refused (``DowngradeError``)
     unless ``allow_downgrade``.
     """
-    package, into = Path(package), Path(into)
+    package, into = Path(package), _as_folder(into)
+    check_install_root(into)
     # before anything is written (not even ``into`` or its lock): a refused package leaves the
     # disk as it was; the unpack below checks the signature again on what it extracts
     verified = verify_package(package, trusted_keys, limits=limits)
@@ -284,9 +340,10 @@ def rollback(into: Path | str) -> InstallResult:
     Rolling back twice returns to where you started. The previous version is re-verified
     first, so a rollback never switches to a damaged folder.
     """
-    into = Path(into)
+    into = _as_folder(into)
     if not into.is_dir():
         raise InstallError(f"{into}: no such install folder; run `craft install` first")
+    check_install_root(into)
     with _locked(into):
         _finish_rollback(into)
         cur, prev = _link_target(into, CURRENT), _link_target(into, PREVIOUS)
@@ -329,11 +386,12 @@ def installed(into: Path | str, *, verify: bool = False) -> list[InstalledVersio
     """Every version folder, newest name last, with its manifest facts and current/previous marks.
 
     With ``verify`` every file is re-hashed (slower), so ``problem`` reports silent disk damage.
+    A folder that does not exist yet lists nothing (``craft installed`` calls an explicitly named
+    one that is missing an error); a bundle or other foreign folder is refused.
     """
-    into = Path(into)
+    into = _as_folder(into)
     versions = into / VERSIONS
-    if into.exists() and not into.is_dir():
-        raise InstallError(f"{into}: is a file, not an install folder; check --into")
+    check_install_root(into)
     if not versions.is_dir():
         return []
     cur, prev = _link_target(into, CURRENT), _link_target(into, PREVIOUS)

@@ -83,6 +83,11 @@ class DestinationError(PackageError):
     """The package is fine but the destination cannot be written (disk full, permissions)."""
 
 
+class TrustedKeyError(PackageError):
+    """A trusted key given to check a package is unusable (no such file, a private key, not a
+    key at all): bad input (``craft install`` exit 2), not a package that failed its check."""
+
+
 @dataclass(frozen=True)
 class Limits:
     """Ceilings on what unpacking may consume; they stop decompression bombs and member floods.
@@ -176,6 +181,37 @@ def _decode_key_text(text: str) -> bytes | None:
     return raw if len(raw) == 32 else None
 
 
+def _public_key_file(path: Path) -> bytes | None:
+    """The key in the public key file ``path``; None when no such file (the value may be a key
+    spelled out). A folder, an unreadable file, a private key or any other file is an error that
+    says which: each has its own fix."""
+    try:
+        if path.is_dir():
+            raise TrustedKeyError(f"{path}: is a folder; pass the craft-signing.pub file in it "
+                                  "(written by `craftc keygen`)")
+        if not path.is_file():
+            return None
+        data = path.read_bytes()[:64 * 1024]
+    except OSError as exc:
+        raise TrustedKeyError(
+            f"{path}: cannot read the trusted key ({exc.strerror or exc}); check the file"
+        ) from None
+    text = data.decode("ascii", errors="replace")
+    raw = _decode_key_text(text)
+    if raw is not None:
+        return raw
+    if any(line.strip().startswith("seed:") for line in text.splitlines()):
+        raise TrustedKeyError(
+            f"{path}: is a private signing key (craft-signing.key); pass its public half, "
+            "craft-signing.pub, written beside it by `craftc keygen` (and keep the private key "
+            "off robots)"
+        )
+    raise TrustedKeyError(
+        f"{path}: not an Ed25519 public key file (expected one line of 64 hex characters, "
+        "as `craftc keygen` writes craft-signing.pub); pass the signer's craft-signing.pub"
+    )
+
+
 def parse_public_key(value: TrustedKey) -> bytes:
     """The raw 32-byte Ed25519 public key from any accepted spelling.
 
@@ -197,26 +233,16 @@ def parse_public_key(value: TrustedKey) -> bytes:
         if raw is not None:
             return raw
     if isinstance(value, str | os.PathLike):
-        path = Path(value)
-        try:
-            if path.is_file():
-                raw = _decode_key_text(path.read_text(encoding="ascii", errors="replace"))
-                if raw is not None:
-                    return raw
-                raise PackageError(
-                    f"{path}: not an Ed25519 public key file (expected one line of 64 hex "
-                    "characters, as written by `craftc keygen`); pass craft-signing.pub, not the "
-                    "private key"
-                )
-        except OSError:
-            pass
+        raw = _public_key_file(Path(value))
+        if raw is not None:
+            return raw
     looks_like_path = isinstance(value, os.PathLike) or (
         isinstance(value, str) and ("/" in value or value.endswith(".pub")))
     if looks_like_path and not Path(value).exists():  # type: ignore[arg-type]
-        raise PackageError(f"trusted key {str(value)[:200]}: no such file; pass the craft-signing.pub "
-                           "written by `craftc keygen` (or its 64 hex characters)")
+        raise TrustedKeyError(f"trusted key {str(value)[:200]}: no such file; pass the craft-signing.pub "
+                              "written by `craftc keygen` (or its 64 hex characters)")
     shown = repr(value)[:40]
-    raise PackageError(
+    raise TrustedKeyError(
         f"trusted key {shown}: not an Ed25519 public key (expected 32 raw bytes, 64 hex "
         "characters, base64, or a craft-signing.pub file written by `craftc keygen`)"
     )
@@ -224,7 +250,7 @@ def parse_public_key(value: TrustedKey) -> bytes:
 
 def _trusted_table(trusted_keys: Sequence[TrustedKey] | None) -> dict[str, bytes]:
     if not trusted_keys:
-        raise PackageError(
+        raise TrustedKeyError(
             "no trusted keys given: a packed bundle is only used when its signer is trusted; "
             "pass the signer's craft-signing.pub (--trusted-key, or trusted_keys=[...])"
         )
@@ -776,6 +802,7 @@ __all__ = [
     "PackageHeader",
     "PackageSignature",
     "PackageStatement",
+    "TrustedKeyError",
     "VerifiedPackage",
     "container_bytes",
     "key_id",

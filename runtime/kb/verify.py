@@ -1,6 +1,7 @@
 """Reading a bundle folder safely: the manifest and every listed file, each checked against its
-sha256 and size before use. Shared by the loader (``bundle``), packages (``package``), installs
-(``install``) and ``craftc pack``; imports nothing else of the runtime.
+sha256 and size before use, then against each other (``content``). Shared by the loader
+(``bundle``), packages (``package``), installs (``install``) and ``craftc pack``, so a bundle that
+does not verify here is neither loaded, signed nor installed.
 """
 
 from __future__ import annotations
@@ -21,6 +22,10 @@ from ...schemas.v1.bundle import (
     content_hash,
     listed_files_ok,
 )
+from .errors import BundleError
+
+__all__ = ["MAX_FILE_BYTES", "MAX_MANIFEST_BYTES", "SUPPORTED_SCHEMA_VERSIONS", "BundleError",
+           "read_manifest", "read_regular_file", "verify_digests", "verify_files"]
 
 SUPPORTED_SCHEMA_VERSIONS = (1,)
 #: Ceilings checked *before* reading: a manifest is kilobytes, a bundle file megabytes. A link to
@@ -29,28 +34,27 @@ MAX_MANIFEST_BYTES = 16 << 20
 MAX_FILE_BYTES = 1 << 30
 
 
-class BundleError(RuntimeError):
-    """A bundle cannot be trusted or read; the message names the file and the fix."""
-
-
 def _sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
 def read_regular_file(path: Path, cap: int, expected: int | None = None) -> bytes:
     """The bytes of ``path`` if it is a regular file of at most ``cap`` (or exactly ``expected``)
-    bytes; a FIFO, device, socket or oversized file is a ``BundleError`` before any read.
+    bytes; a folder, FIFO, device, socket or oversized file is a ``BundleError`` before any read.
 
     ``O_NONBLOCK`` makes opening a FIFO return at once (a plain open would wait for a writer
     forever); the type and size come from ``fstat`` of the opened descriptor, so a file swapped
-    between the check and the read cannot slip through.
+    between the check and the read cannot slip through. A folder opens too (``O_RDONLY`` on a
+    directory succeeds on Linux and macOS), so it is told apart by its type, not by the open.
     """
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-    except IsADirectoryError:
-        raise BundleError(f"{path}: is a folder, not a bundle file; rebuild the bundle") from None
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     try:
         info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise BundleError(
+                f"{path}: is a folder, not a file; a bundle holds only regular files — rebuild "
+                "or re-install it"
+            )
         if not stat.S_ISREG(info.st_mode):
             raise BundleError(
                 f"{path}: not a regular file (a device, FIFO or socket); a bundle holds only "
@@ -96,7 +100,12 @@ def read_manifest(folder: Path) -> Manifest:
         raise BundleError(f"{path}: not readable by this user; fix the bundle's permissions") from None
     except (ValueError, RecursionError) as exc:
         raise BundleError(f"{path}: not valid JSON ({exc}); rebuild the bundle") from None
-    version = raw.get("schema_version") if isinstance(raw, dict) else None
+    if not isinstance(raw, dict):
+        raise BundleError(
+            f"{path}: not a JSON object (the document is {_json_kind(raw)}); a manifest is an "
+            "object with schema_version, files, verbs, ... — rebuild the bundle"
+        )
+    version = raw.get("schema_version")
     if version not in SUPPORTED_SCHEMA_VERSIONS:
         raise BundleError(
             f"{path}: schema_version {version!r} is not supported by this runtime "
@@ -109,8 +118,36 @@ def read_manifest(folder: Path) -> Manifest:
         raise BundleError(f"{path}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
 
 
+def _json_kind(value: object) -> str:
+    """What a JSON document is, in words ("a list", "null"), for a message."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    return {list: "a list", str: "a string", int: "a number", float: "a number"}.get(
+        type(value), type(value).__name__
+    )
+
+
 def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
-    """Read every listed file and check its size and sha256, and the content hash."""
+    """Every listed file's bytes, checked as ``verify_digests`` does and then against each other
+    and the manifest (``content.read_content``: graph, E_aff, embeddings, open-world model, ...).
+
+    ``craftc pack``, ``craft install`` and ``unpack_package`` call this: hashes alone prove only
+    that the files are the ones the manifest lists, and a bundle whose graph names a node that
+    does not exist or whose E_aff is +7 must be refused before it is signed or installed, not
+    when the robot grounds with it.
+    """
+    from .content import read_content  # content imports what a bundle's files need (numpy, ...)
+
+    data = verify_digests(folder, manifest)
+    read_content(folder, manifest, data)
+    return data
+
+
+def verify_digests(folder: Path, manifest: Manifest) -> dict[str, bytes]:
+    """Read every listed file and check its size and sha256, and the content hash (no parsing:
+    ``load_bundle`` parses once and checks the content itself)."""
     if not listed_files_ok(set(manifest.files)):
         raise BundleError(
             f"{folder / MANIFEST_FILE}: lists {sorted(manifest.files)}, expected {sorted(BUNDLE_FILES)}"

@@ -46,7 +46,7 @@ class GraphEdge(BaseModel):
 
     source: str = Field(pattern=r"^(verb|prop):.+")
     target: str = Field(pattern=r"^(prop|obj):.+")
-    weight: float
+    weight: float = Field(ge=0.0, le=1.0, description="w_vp or w_po, in [0, 1]")
     provenance: list[str]
     relation: str | None = None
     role: Role | None = None
@@ -54,7 +54,8 @@ class GraphEdge(BaseModel):
     @field_validator("weight", mode="before")
     @classmethod
     def _finite(cls, value: Any) -> Any:
-        """A number, never a string or a bool that pydantic would coerce."""
+        """A number, never a string or a bool that pydantic would coerce (its range, [0, 1], is
+        checked after: every E_aff form assumes it, and the compiler drops any weight outside)."""
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
             raise ValueError(f"weight {value!r} is not a finite number")
         return value

@@ -25,8 +25,10 @@ from .graph import NodeKind, Role
 __all__ = ["GraphWire", "ValidationError", "graph_wire_problem", "validate_graph_json"]
 
 _FORBID = ConfigDict(extra="forbid")
-#: A weight is a JSON number, finite; never a string or a bool (as ``GraphEdge._finite``).
-_Weight = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+#: A weight is a JSON number, finite, in [0, 1]; never a string or a bool (as ``GraphEdge``).
+_Weight = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=1.0)]
+#: pydantic's error types of a number outside ``ge`` / ``le``.
+_OUT_OF_RANGE = ("greater_than_equal", "less_than_equal")
 
 
 @with_config(_FORBID)
@@ -75,9 +77,12 @@ def validate_graph_json(data: bytes | str) -> GraphWire:
 
 def graph_wire_problem(exc: ValidationError) -> str:
     """The first fault of ``exc`` in ``KnowledgeGraph``'s words: where, and what is wrong (a
-    weight that is no finite number is said so, as the model's own check says it)."""
+    weight that is no finite number is said so, as the model's own check says it; one outside
+    [0, 1] too)."""
     first = exc.errors()[0]
     where = ".".join(str(p) for p in first["loc"]) or "graph"
+    if first["loc"] and first["loc"][-1] == "weight" and first["type"] in _OUT_OF_RANGE:
+        return f"{where!r}: weight {first['input']!r} is outside [0, 1], where weights lie"
     if first["loc"] and first["loc"][-1] == "weight" and first["type"] != "missing":
         return f"{where!r}: weight {first['input']!r} is not a finite number"
     return f"{where!r}: {first['msg']}"
