@@ -395,12 +395,13 @@ def validate(
     ],
     trusted_key: TrustedKeyOpt = None,
 ) -> None:
-    """Verify a bundle: schema, per-file sha256, content hash, internal consistency."""
-    from ..runtime.kb.bundle import BundleError, load_bundle
+    """Verify a bundle: schema, per-file sha256, content hash, internal consistency, E_aff and graph.ttl = its graph's."""
+    from ..runtime.kb.bundle import BundleError
+    from .bundle_checks import load_and_check
 
     keys = _trusted_keys(trusted_key)
-    try:
-        kb = load_bundle(bundle, check_encoder=False, trusted_keys=keys)
+    try:  # then E_aff and graph.ttl recomputed from graph.json: what loading skips
+        kb = load_and_check(bundle, keys)
     except BundleError as exc:
         fail(str(exc), EXIT_CHECK_FAILED)
     stdout.print(

@@ -203,9 +203,14 @@ def seal(
 
 
 def _bundle_members(bundle_dir: Path) -> tuple[list[tuple[str, bytes]], Manifest]:
+    from ..runtime.kb.bundle import load_bundle
+    from .bundle_checks import check_derived_files
+
     try:
         manifest = read_manifest(bundle_dir)
         data = verify_files(bundle_dir, manifest)
+        # what validate checks beyond loading: a signed bundle's E_aff and graph.ttl are its graph's
+        check_derived_files(load_bundle(bundle_dir, check_encoder=False))
     except BundleError as exc:
         raise UnverifiedBundleError(
             f"refusing to pack a bundle that does not verify: {exc}"

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import hashlib
 from collections import defaultdict
+from collections.abc import Mapping
+from typing import Any
 from urllib.parse import quote
 
 import networkx as nx
@@ -89,3 +91,14 @@ def graph_turtle(graph: nx.DiGraph, kb_name: str) -> bytes:
         body = " ;\n    ".join(f"{p} {o}" for p, o in pairs)
         lines.append(f"{subject}\n    {body} .\n")
     return ("\n".join(lines)).encode("utf-8")
+
+
+def turtle_of_graph_json(graph_data: Mapping[str, Any], kb_name: str) -> bytes:
+    """The ``graph.ttl`` that ``craftc build`` writes for this ``graph.json`` (node-link data, as
+    ``load_bundle`` checked it): ``craftc validate`` and ``pack`` compare the two, since the runtime
+    never reads the Turtle and a stale or edited one would mislead only the people who query it."""
+    graph = nx.node_link_graph(dict(graph_data), directed=True, multigraph=False, edges="edges")
+    for u, v in graph.edges:  # the compiler always writes a relation; an absent one reads as none
+        graph.edges[u, v].setdefault("relation", None)
+    return graph_turtle(graph, kb_name)
+

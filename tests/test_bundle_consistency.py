@@ -278,3 +278,69 @@ def test_validate_explain_and_diff_read_a_signed_package_with_trusted_key(tmp_pa
     assert missing.exit_code == 2 and "--trusted-key" in missing.output and "no such file" in missing.output
     shutil.rmtree(folder)  # nothing of the package was left unpacked beside it
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kb.craft", "keys"]
+
+
+# -- E_aff recomputed from the graph: craftc validate and craftc pack ------------------------------
+
+
+def _validate(folder: Path) -> Result:
+    return CliRunner().invoke(craftc_app, ["validate", str(folder)])
+
+
+def test_validate_and_pack_refuse_energies_that_are_not_the_graphs(tmp_path: Path) -> None:
+    """A manifest whose energy form was relabelled, or one E_aff value edited within [-1, 0], passes
+    every load-time check; validate and pack recompute E_aff from graph.json and refuse it."""
+    from craft_e.runtime.kb.energy_check import check_energy_matches_graph
+
+    folder = make_bundle(tmp_path / "kb")
+    check_energy_matches_graph(load_bundle(folder, check_encoder=False))
+    assert _validate(folder).exit_code == 0
+    form = read_manifest(folder).energy.form
+    other = "sum-tanh" if form != "sum-tanh" else "normalized-product"
+    relabelled = tmp_path / "relabelled"
+    shutil.copytree(folder, relabelled)
+    edit_manifest(lambda m: m["energy"].update(form=other))(relabelled)
+    load_bundle(relabelled, check_encoder=False)  # loading alone does not recompute
+    result = _validate(relabelled)
+    assert result.exit_code == 1, result.output
+    said = " ".join(result.output.split())
+    assert "affordance_energy.npy: E_aff(" in said and f"in the manifest's form '{other}'" in said
+    edited = tmp_path / "edited"
+    shutil.copytree(folder, edited)
+    set_energy(lambda e: e.__setitem__((0, 0), -0.5 if e[0, 0] != -0.5 else -0.25))(edited)
+    result = _validate(edited)
+    assert result.exit_code == 1 and "not this graph's" in " ".join(result.output.split()), result.output
+    pair = keygen(tmp_path / "keys")
+    for bad in (relabelled, edited):
+        with pytest.raises(UnverifiedBundleError, match=r"affordance_energy\.npy: E_aff"):
+            pack_bundle(bad, pair.private_key, tmp_path / f"{bad.name}.craft")
+        assert not (tmp_path / f"{bad.name}.craft").exists()
+
+
+def test_the_shipped_bundles_energies_are_their_graphs() -> None:
+    from craft_e.runtime.kb.energy_check import check_energy_matches_graph
+
+    folders = sorted(p.parent for p in (ROOT / "artifacts" / "kb").glob("*/manifest.json"))
+    assert len(folders) >= 5
+    for folder in folders:
+        check_energy_matches_graph(load_bundle(folder, check_encoder=False))
+
+
+def test_validate_and_pack_refuse_a_turtle_that_is_not_the_graphs(tmp_path: Path) -> None:
+    """The runtime never reads graph.ttl, so loading cannot notice it is stale or edited; validate
+    regenerates it from graph.json (byte for byte what craftc writes) and pack refuses to sign it.
+    A signed package is checked on what it holds."""
+    folder = make_bundle(tmp_path / "kb")
+    pair = keygen(tmp_path / "keys")
+    package = pack_bundle(folder, pair.private_key, tmp_path / "kb.craft").out
+    result = CliRunner().invoke(craftc_app, ["validate", str(package), "--trusted-key", str(pair.public_key)])
+    assert result.exit_code == 0, result.output
+    ttl = (folder / "graph.ttl").read_bytes()
+    reseal(folder, "graph.ttl", ttl.replace(b"0.900000", b"0.100000"))
+    load_bundle(folder, check_encoder=False)  # loading alone does not read the Turtle
+    result = _validate(folder)
+    assert result.exit_code == 1, result.output
+    assert f"{folder / 'graph.ttl'}: is not the Turtle of graph.json" in " ".join(result.output.split())
+    with pytest.raises(UnverifiedBundleError, match=r"graph\.ttl: is not the Turtle"):
+        pack_bundle(folder, pair.private_key, tmp_path / "stale.craft")
+    assert not (tmp_path / "stale.craft").exists()

@@ -35,7 +35,9 @@ from craft_e.compiler.pack import (
     pack_bundle,
     seal,
 )
+from craft_e.compiler.rdf import turtle_of_graph_json
 from craft_e.runtime.encoders.text import MINILM_ID, MINILM_SHA256
+from craft_e.runtime.grounding.energies import affordance_energy_matrix
 from craft_e.runtime.kb.bundle import BundleError, load_bundle
 from craft_e.runtime.kb.package import (
     PACKAGE_MAGIC,
@@ -86,8 +88,18 @@ def make_bundle(out: Path, *, name: str = "tiny", version: str = "1.0.0", seed: 
         "nodes": nodes,
         "edges": edges,
     }
+    rng.uniform(-1, 0, (len(VERBS), len(OBJECTS)))  # the draw of the old random E_aff: same embeddings
+    # E_aff as craftc computes it from these edges (validate and pack recompute it from the graph)
+    w_vp = np.zeros((len(VERBS), len(PROPS)), np.float32)
+    w_po = np.zeros((len(PROPS), len(OBJECTS)), np.float32)
+    for edge in edges:
+        (src_kind, src), (_, dst) = (str(edge["source"]).split(":", 1), str(edge["target"]).split(":", 1))
+        if src_kind == "verb":
+            w_vp[VERBS.index(src), PROPS.index(dst)] = float(edge["weight"])  # type: ignore[arg-type]
+        else:
+            w_po[PROPS.index(src), OBJECTS.index(dst)] = float(edge["weight"])  # type: ignore[arg-type]
     energy = io.BytesIO()
-    np.save(energy, rng.uniform(-1, 0, (len(VERBS), len(OBJECTS))).astype(np.float32))
+    np.save(energy, affordance_energy_matrix(w_vp, w_po, tau=0.5, form="sum-tanh").astype(np.float32))
 
     def unit(rows: int) -> npt.NDArray[np.float32]:
         x = rng.normal(size=(rows, 8)).astype(np.float32)
@@ -111,7 +123,7 @@ def make_bundle(out: Path, *, name: str = "tiny", version: str = "1.0.0", seed: 
     )
     files = {
         "graph.json": json.dumps(graph, sort_keys=True).encode(),
-        "graph.ttl": b"@prefix craft: <https://craft-e.dev/kb#> .\n",
+        "graph.ttl": turtle_of_graph_json(graph, name),  # validate and pack regenerate and compare it
         "embeddings.safetensors": embeddings,
         "affordance_energy.npy": energy.getvalue(),
         "report.json": report.model_dump_json().encode(),

@@ -28,7 +28,7 @@ so the veto forms equal their base forms).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any, Literal, Protocol, get_args
 
 import numpy as np
@@ -244,6 +244,34 @@ def required_matrix_from_graph(
             if role == "required" and p in p_index:
                 required[vi, p_index[p]] = True
     return required
+
+
+def energy_from_graph(
+    graph: WeightedGraph,
+    forbidden: Iterable[tuple[str, str]],
+    verbs: list[str],
+    properties: list[str],
+    objects: list[str],
+    *,
+    tau: float,
+    form: EnergyForm,
+) -> FloatArray:
+    """``[V, O]`` E_aff in ``form`` from a bundle's graph: its weights, its roles (only the veto
+    forms read them) and its "never pick" pairs (``forbidden``: verb, object) at
+    ``FORBIDDEN_ENERGY``, exactly as ``craftc build`` computes ``affordance_energy.npy``.
+
+    Used to score a bundle in another form than it was built with, and by ``craftc validate`` /
+    ``pack`` to check that the stored energies are its graph's (``runtime/kb/energy_check.py``).
+    """
+    w_vp, w_po = weight_matrices_from_graph(graph, verbs, properties, objects)
+    required = required_matrix_from_graph(graph, verbs, properties)  # [V, P]
+    energy = affordance_energy_matrix(w_vp, w_po, tau=tau, form=form, required=required)
+    v_index = {v: i for i, v in enumerate(verbs)}
+    o_index = {o: i for i, o in enumerate(objects)}
+    for v, o in forbidden:
+        if v in v_index and o in o_index:
+            energy[v_index[v], o_index[o]] = FORBIDDEN_ENERGY
+    return energy
 
 
 def object_hypotheses(cosine: FloatArray, temperature: float) -> FloatArray:

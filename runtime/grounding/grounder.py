@@ -46,10 +46,9 @@ from .colour_cue import (
     with_colour_cue,
 )
 from .energies import (
-    FORBIDDEN_ENERGY,
     EnergyForm,
-    affordance_energy_matrix,
     check_energy_form,
+    energy_from_graph,
     energy_from_property_columns,
     object_hypotheses,
     property_specificity,
@@ -347,13 +346,8 @@ def affordance_energy_in_form(bundle: Bundle, form: EnergyForm) -> FloatArray:
     check_energy_form(form)
     if form == m.energy.form:
         return bundle.energy
-    w_vp, w_po = weight_matrices_from_graph(bundle.index, m.verbs, m.properties, m.objects)
-    required = required_matrix_from_graph(bundle.index, m.verbs, m.properties)  # [V, P]
-    energy = affordance_energy_matrix(w_vp, w_po, tau=m.energy.tau, form=form, required=required)
-    for v, o in bundle.index.forbidden_pairs():
-        if v in bundle.verb_index and o in bundle.object_index:
-            energy[bundle.verb_index[v], bundle.object_index[o]] = FORBIDDEN_ENERGY
-    return energy
+    return energy_from_graph(bundle.index, bundle.index.forbidden_pairs(), m.verbs, m.properties, m.objects,
+                             tau=m.energy.tau, form=form)
 
 class Grounder:
     """Scores ROIs against verbs with one bundle; construct once, call ``ground`` per request.
