@@ -245,3 +245,39 @@ def emit_report(
         markdown.parent.mkdir(parents=True, exist_ok=True)
         markdown.write_text(table, encoding="utf-8")
         log(f"wrote {markdown}")
+
+
+def verb_object_lists(
+    path: Path, raw: object, error: type[Exception], why_objects: str
+) -> list[tuple[str, str, list[str]]]:
+    """``(key, verb, objects)`` of a ``{"verb": ["object", ...]}`` labels document (keys starting
+    with ``_`` are metadata, skipped): the key as written, its normalized verb, its object names.
+
+    Shared by ``craft eval imagenet`` and ``craft eval kb``, so both refuse what they would
+    misread (``error``, naming ``path``): a document that is no object, a blank verb, two keys
+    naming one verb (``"carry"`` and ``"CARRY"``: the second list silently replaced the first), a
+    value that is no list of names, and a verb with no objects (``why_objects`` says what that
+    would break in the caller's protocol)."""
+    from ..grounding.grounder import normalize_verb_name
+
+    if not isinstance(raw, dict):
+        raise error(f'{path}: expected an object {{"verb": ["object", ...]}}')
+    out: list[tuple[str, str, list[str]]] = []
+    spelled: dict[str, str] = {}  # normalized verb -> the key that named it first
+    for key, objects in raw.items():
+        if str(key).startswith("_"):
+            continue
+        verb = normalize_verb_name(key)
+        if not verb:
+            raise error(f"{path}: the verb name {key!r} is blank; name the action, e.g. \"cut\"")
+        if verb in spelled:
+            raise error(f"{path}: {spelled[verb]!r} and {key!r} name the same verb {verb!r}; "
+                        "merge their objects under one key")
+        spelled[verb] = key
+        if not isinstance(objects, list) or not all(isinstance(o, str) for o in objects):
+            raise error(f"{path}: {key!r}: expected a list of object names")
+        if not objects:
+            raise error(f"{path}: {key!r} lists no objects; {why_objects} (or drop the verb)")
+        out.append((str(key), verb, objects))
+    return out
+

@@ -46,7 +46,6 @@ import numpy.typing as npt
 from ...files import read_json, sha256_file
 from ...paths import VOCAB_DIR, shared_dir
 from ..grounding.energies import object_hypotheses
-from ..grounding.grounder import normalize_verb_name
 from ..grounding.settings import GroundingSettings
 from .common import (
     ImageEmbeddingCache,
@@ -57,6 +56,7 @@ from .common import (
     read_artifact_names,
     reciprocal_rank,
     topk_accuracy,
+    verb_object_lists,
     vocabulary_senses,
 )
 from .methods import MethodSpec, default_methods, load_methods, method_settings
@@ -138,26 +138,10 @@ def load_labels(path: Path, classes: Sequence[str]) -> dict[str, list[str]]:
     keys naming one verb (``"carry"`` and ``"CARRY"``, or one key twice), where the second list
     silently replaced the first."""
     raw = read_json(path, "labels file", LabelsError, unique_keys=True)
-    if not isinstance(raw, dict):
-        raise LabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
     known = set(classes)
     labels: dict[str, list[str]] = {}
-    spelled: dict[str, str] = {}  # normalized verb -> the key that named it first
-    for verb, objects in raw.items():
-        if str(verb).startswith("_"):
-            continue
-        name = normalize_verb_name(verb)
-        if not name:
-            raise LabelsError(f"{path}: the verb name {verb!r} is blank; name the action, e.g. \"cut\"")
-        if name in spelled:
-            raise LabelsError(f"{path}: {spelled[name]!r} and {verb!r} name the same verb {name!r}; "
-                              "merge their objects under one key")
-        spelled[name] = verb
-        if not isinstance(objects, list) or not all(isinstance(o, str) for o in objects):
-            raise LabelsError(f"{path}: {verb!r}: expected a list of object names")
-        if not objects:
-            raise LabelsError(f"{path}: {verb!r} lists no objects; every episode shows an affording class, "
-                              "so list the classes that afford it (or drop the verb)")
+    for verb, name, objects in verb_object_lists(path, raw, LabelsError, "every episode shows an affording class, "
+                                                 "so list the classes that afford it"):
         names = list(dict.fromkeys(_norm(o) for o in objects))
         unknown = [o for o in names if o not in known]
         if unknown:

@@ -50,6 +50,7 @@ from .common import (
     MethodResult,
     SkippedMethod,
     markdown_table,
+    verb_object_lists,
 )
 from .methods import NoMethodToRunError, nothing_runs
 from .zhu import ZhuMatrixError, average_precision, read_zhu_matrix
@@ -140,26 +141,8 @@ def json_labels(path: Path, objects: Sequence[str] | None = None) -> LabelSet:
     verb, a verb with no objects (its AP and AUC would be NaN, left out of every mean) and two
     keys naming one verb (the second list silently replaced the first) are errors."""
     raw = read_json(path, "labels file", KBLabelsError, unique_keys=True)
-    if not isinstance(raw, dict):
-        raise KBLabelsError(f'{path}: expected an object {{"verb": ["object", ...]}}')
-    pairs: dict[str, list[str]] = {}
-    spelled: dict[str, str] = {}  # normalized verb -> the key that named it first
-    for verb, names in raw.items():
-        if str(verb).startswith("_"):
-            continue
-        name = normalize_verb_name(verb)
-        if not name:
-            raise KBLabelsError(f"{path}: the verb name {verb!r} is blank; name the action, e.g. \"cut\"")
-        if name in spelled:
-            raise KBLabelsError(f"{path}: {spelled[name]!r} and {verb!r} name the same verb {name!r}; "
-                                "merge their objects under one key")
-        spelled[name] = verb
-        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise KBLabelsError(f"{path}: {verb!r}: expected a list of object names")
-        if not names:
-            raise KBLabelsError(f"{path}: {verb!r} lists no objects; list the objects that afford it "
-                                "(or drop the verb)")
-        pairs[str(verb)] = names
+    pairs = {key: names for key, _, names in verb_object_lists(
+        path, raw, KBLabelsError, "its AP and AUC would be NaN, left out of every mean; list the objects that afford it")}
     listed = raw.get("_objects")
     if listed is not None and not (isinstance(listed, list) and all(isinstance(o, str) for o in listed)):
         raise KBLabelsError(f'{path}: "_objects" must be a list of object names')
