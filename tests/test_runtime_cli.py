@@ -33,6 +33,24 @@ def test_ground_two_boxes_prints_ranking_and_writes_png(runtime_kbs: RuntimeKBs,
     assert all(r["e_grasp"] == 0.0 for r in data["ranked"])
 
 
+def test_ground_notes_a_box_that_reaches_past_the_image(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
+    """As ``/ground_image`` does: the crop of such a box holds only the part inside the image."""
+    from PIL import Image
+
+    image = shared_image("teapot")
+    with Image.open(image) as img:
+        width, height = img.size
+    out = tmp_path / "g.json"
+    result = runner.invoke(app, ["ground", "--kb", str(runtime_kbs.kb), "--verb", "pour", "--image", str(image),
+                                 "--box", "0,0,100,100", "--box", f"{width - 50},10,100,100", "--json", str(out),
+                                 "--threads", "1"])
+    assert result.exit_code == 0, result.output
+    note = f"box 1 [{width - 50:.1f}, 10.0, 100.0, 100.0] reaches past the {width}x{height} image"
+    assert note in " ".join(result.output.split())
+    notes = json.loads(out.read_text())["notes"]
+    assert sum("reaches past" in n for n in notes) == 1
+
+
 def test_ground_with_rois_file_and_grasp_scores(runtime_kbs: RuntimeKBs, tmp_path: Path) -> None:
     rois = tmp_path / "rois.json"
     rois.write_text(json.dumps({"rois": [

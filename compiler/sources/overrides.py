@@ -254,7 +254,8 @@ class _Applier:
         old = links.get(edge.dst)
         if old is None:
             raise self.fail(edit, None, f"no edge {edge} to reweight", "use [[add]] to create it")
-        links[edge.dst] = Link(weight, (*old.provenance, self.provenance(edit)), "override")
+        # the answer's role (required / helpful) stays: a weight edit is not a judgment of necessity
+        links[edge.dst] = Link(weight, (*old.provenance, self.provenance(edit)), "override", old.role)
         self.draft.count(STAGE, f"reweighted {edge.kind} edges")
 
     def forbid(self, edit: Edit) -> None:

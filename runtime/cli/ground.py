@@ -123,7 +123,7 @@ def ground(
     from ..encoders.image import load_image as read_image
     from ..grounding.grounder import Grounder
     from ..kb.bundle import BundleError, load_bundle
-    from ..perception.roi import BoxSpec, RoiError, build_rois
+    from ..perception.roi import BoxSpec, RoiError, boxes_past_the_image, build_rois
 
     if len(verb) > MAX_NAME_CHARS:  # checked first: a huge --verb is never processed or echoed
         fail(f"--verb {shown(verb)} is longer than {MAX_NAME_CHARS} characters")
@@ -187,7 +187,7 @@ def ground(
                               grasp_backend="antipodal" if grasp == "auto" else grasp)
     except RoiError as exc:
         fail(str(exc))
-    notes: list[str] = []
+    notes = boxes_past_the_image([s.box for s in specs], rgb.shape[1], rgb.shape[0])
     defaulted = [r for r, s in zip(roi_list, specs, strict=True) if s.grasp_scores is None and depth_map is None]
     for r in defaulted:
         r.grasp_scores = [1.0]

@@ -55,7 +55,7 @@ class Explanation:
         if not self.paths:
             lines.append(f"no path: no property of {self.verb!r} links to {self.obj!r} with w_po >= {self.tau:g}")
         for p in sorted(self.paths, key=lambda p: (-(p.w_vp + p.w_po), p.prop)):
-            records = ", ".join(k[:12] for k in p.provenance)
+            records = ", ".join(short_record(k) for k in p.provenance)
             role = (self.roles or {}).get(p.prop)
             tag = f" ({role})" if role else ""
             lines.append(f"  {p.verb} -({p.w_vp:.2f})-> {p.prop}{tag} -({p.w_po:.2f})-> {p.obj}   [records {records}]")
@@ -103,3 +103,11 @@ def explain_pair(bundle: Bundle, verb: str, obj: str) -> Explanation:
         gloss=g.gloss(o) or "", verb_gloss=g.verb_gloss(v) or "", definitions=definitions,
         roles=roles,
     )
+
+
+def short_record(key: str) -> str:
+    """A provenance entry as ``craftc explain`` prints it: a record key (64 hex digits) as its
+    first 12, which find the record file; anything else, such as an override's
+    ``override:<file>:<line>``, whole (cut to 12 it named no file and no line)."""
+    return key[:12] if len(key) == 64 and all(c in "0123456789abcdef" for c in key) else key
+

@@ -64,6 +64,15 @@ class BoxSpec:
     label: str | None = None
 
 
+def boxes_past_the_image(boxes: Sequence[Sequence[float]], width: int, height: int) -> list[str]:
+    """A note per ``x, y, w, h`` box that reaches past a ``width`` x ``height`` image: its crop
+    holds only the part inside, which a caller should know (``craft ground``, ``/ground_image``)."""
+    return [f"box {i} {[float(v) for v in b]} reaches past the {width}x{height} image: only the part inside "
+            "was embedded"
+            for i, b in enumerate(boxes)
+            if b[0] < 0 or b[1] < 0 or b[0] + b[2] > width or b[1] + b[3] > height]
+
+
 class RoiError(ValueError):
     """Box ``index`` cannot become an ROI (outside the image, grasp prediction failed)."""
 

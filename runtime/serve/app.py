@@ -68,7 +68,7 @@ from ..grounding.grounder import (
 from ..grounding.settings import GroundingSettings
 from ..kb.bundle import Bundle, load_bundle
 from ..kb.colours import COLOUR_TERMS
-from ..perception.roi import ROI, BoxSpec, RoiError, build_rois
+from ..perception.roi import ROI, BoxSpec, RoiError, boxes_past_the_image, build_rois
 
 #: Candidate regions per request. A tabletop scene has a handful; the bound keeps one request's
 #: cost (and a hostile client's) small, and is reported in the 422 when exceeded.
@@ -494,16 +494,6 @@ def grounding_json(result: Grounding, bundle: Bundle, options: GroundOptions | N
     return data
 
 
-def _boxes_past_the_image(boxes: Sequence[BoxIn], size: dict[str, int]) -> list[str]:
-    """A note per box that reaches past the image: its crop holds only the part inside (a box
-    wholly outside is a 422 before this)."""
-    w, h = size["width"], size["height"]
-    return [f"box {i} {list(b.box_xywh)} reaches past the {w}x{h} image: only the part inside was embedded"
-            for i, b in enumerate(boxes)
-            if b.box_xywh[0] < 0 or b.box_xywh[1] < 0 or b.box_xywh[0] + b.box_xywh[2] > w
-            or b.box_xywh[1] + b.box_xywh[3] > h]
-
-
 def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> npt.NDArray[np.uint8]:
     """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem otherwise (413: too many
     pixels, judged from the header before anything is decoded)."""
@@ -726,7 +716,7 @@ def create_app(
         finally:
             slot.release()
         data = service.ground(req.verb, rois, req.options)
-        data["notes"] = [*data.get("notes", []), *_boxes_past_the_image(req.boxes, size)]
+        data["notes"] = [*data.get("notes", []), *boxes_past_the_image([b.box_xywh for b in req.boxes], size["width"], size["height"])]
         data["image"] = {**size, "encoder": service.image_encoder.id if service.image_encoder is not None else None}
         return _json(data)
 
