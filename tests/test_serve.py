@@ -320,6 +320,25 @@ def test_cli_refuses_a_missing_bundle_with_exit_2(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "--image-encoder" in r.output
 
 
+def test_cli_port_0_does_not_print_port_0(runtime_kbs: RuntimeKBs, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--port 0`` lets the OS pick the port when uvicorn binds; the start-up line said ``:0``."""
+    import uvicorn
+
+    from craft_e.runtime.cli.main import app
+
+    ran: dict[str, Any] = {}
+    monkeypatch.setattr(uvicorn, "run", lambda *a, **k: ran.update(k))
+    r = CliRunner().invoke(app, ["serve", "--kb", str(runtime_kbs.kb), "--image-encoder", "none", "--port", "0"])
+    assert r.exit_code == 0, r.output
+    said = " ".join(r.output.split())
+    assert ran["port"] == 0 and ":0" not in said and "a free port the OS picks" in said
+    with socket.socket() as probe:  # a port free now (the command checks it can listen there)
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    r = CliRunner().invoke(app, ["serve", "--kb", str(runtime_kbs.kb), "--image-encoder", "none", "--port", str(port)])
+    assert r.exit_code == 0 and f"on http://127.0.0.1:{port}" in " ".join(r.output.split()), r.output
+
+
 def test_cli_names_a_busy_port_and_a_bad_host_before_loading(tmp_path: Path) -> None:
     import socket
 

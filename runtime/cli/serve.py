@@ -79,8 +79,10 @@ def serve_cmd(
     except (BundleError, ServeError, EncoderError) as exc:
         fail(str(exc))
     health = app.state.service.health()
+    # --port 0 asks the OS for a free port when uvicorn binds: only uvicorn's next line knows it
+    where = f"http://{host}:{port}" if port else f"{host}, on a free port the OS picks (uvicorn's next line names it)"
     err.print(f"serving {health['kb']}@{health['version']} (content sha256 {health['content_sha256'][:16]}..., "
                f"{health['verbs']} verbs, dim {health['dim']}, image encoder {health['image_encoder'] or 'none'}) "
-               f"on http://{host}:{port}", highlight=False, soft_wrap=True)
+               f"on {where}", highlight=False, soft_wrap=True)
     uvicorn.run(app, host=host, port=port, log_level=log_level, access_log=access_log, workers=1)
 
