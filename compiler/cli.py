@@ -713,11 +713,15 @@ def curate_record(
     already has a different stored answer is an error: stored answers are never rewritten.
     """
     from .cache import RecordCache, cache_in_use
-    from .curate import CurationError, record_answers
+    from .curate import PROMPT_IDS, CurationError, read_answers, record_answers
     from .sources.llm import LLMSource, SourceError
     from .vocab import VocabError, read_vocabulary
 
     try:
+        # the prompt and the answers file first: a refused run must not create --cache or its lock
+        if prompt not in PROMPT_IDS:
+            raise CurationError(f"unknown prompt {prompt!r}; choose one of {', '.join(PROMPT_IDS)}")
+        read_answers(answers)
         vv = read_vocabulary(verbs, kind="verbs")
         ov = read_vocabulary(objects, kind="objects")
         with cache_in_use(cache):

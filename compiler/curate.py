@@ -84,7 +84,7 @@ class CurationResult:
 PROMPT_IDS = ("verb_properties", "object_properties", "property_objects", "verb_objects", *PER_OBJECT_PROMPTS)
 
 
-def _read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
+def read_answers(path: Path) -> list[tuple[int, dict[str, object]]]:
     """The answer objects of a JSONL file with their line numbers; a missing, unreadable,
     non-UTF-8 file or a folder is a ``CurationError`` naming it (``files.read_text_file``), and
     so is a file with no answer at all: "stored 0 records" and exit 0 would let a script believe
@@ -150,7 +150,7 @@ def record_answers(
     to prompts already recorded (not pending)."""
     if prompt_id not in PROMPT_IDS:
         raise CurationError(f"unknown prompt {prompt_id!r}; choose one of {', '.join(PROMPT_IDS)}")
-    rows = _read_answers(answers)  # before any record is read: a bad file fails first and fast
+    rows = read_answers(answers)  # before any record is read: a bad file fails first and fast
     result = CurationResult(0, 0, [])
     ready: list[tuple[str, Record]] = []
     unknown: list[str] = []  # answers about a subject the verbs / objects files do not name: skipped

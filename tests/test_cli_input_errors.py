@@ -206,10 +206,10 @@ def test_curate_record_names_a_folder_or_an_empty_answers_file(tmp_path: Path) -
         empty.write_text(text, encoding="utf-8")
         result = curate(tmp_path, empty)
         assert f"{empty}: no answers" in flat(result.output) and "stored 0 records" not in result.output
-    assert not list((tmp_path / "cache").rglob("*.json"))  # nothing stored
+    assert not (tmp_path / "cache").exists()  # refused before the cache (or its lock) is made
 
 
 def test_curate_record_lists_the_prompts_for_an_unknown_one(tmp_path: Path) -> None:
     result = curate(tmp_path, KB_SMALL / "verb_properties.jsonl", prompt="bogus")
     assert "unknown prompt 'bogus'; choose one of verb_properties, object_properties" in flat(result.output)
-    assert "object_lookalike" in result.output
+    assert "object_lookalike" in result.output and not (tmp_path / "cache").exists()
