@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import typer
 from typer.testing import CliRunner
 
 from craft_e.compiler.cli import app as craftc
@@ -213,3 +214,55 @@ def test_curate_record_lists_the_prompts_for_an_unknown_one(tmp_path: Path) -> N
     result = curate(tmp_path, KB_SMALL / "verb_properties.jsonl", prompt="bogus")
     assert "unknown prompt 'bogus'; choose one of verb_properties, object_properties" in flat(result.output)
     assert "object_lookalike" in result.output and not (tmp_path / "cache").exists()
+
+
+# --------------------------------------------------------------------------- eval sim / static options
+
+
+@pytest.mark.parametrize("command", [["eval", "sim", "--labels", str(Path(__file__).resolve().parents[1] / "artifacts/labels/sim_dev_labels.csv")],
+                                     ["eval", "static"]])
+@pytest.mark.parametrize("value", ["", " ", "CRAFT-E,,", ",CRAFT-E"])
+def test_an_empty_method_name_is_refused_before_any_episode(command: list[str], value: str) -> None:
+    """``--methods ''`` ran the default methods and ``CRAFT-E,,`` dropped the blank: both started
+    a full run as if the option said something."""
+    result = run([*command, "--methods", value])
+    assert result.exit_code == 2, result.output
+    assert "an empty name (a blank value or a doubled comma)" in flat(result.output)
+
+
+@pytest.mark.parametrize("spec", ["grasp=nan", "box=nan", "grasp=inf", "grasp=-1", "box=1"])
+def test_static_noise_levels_must_be_finite_and_in_range(spec: str) -> None:
+    result = run(["eval", "static", "--noise", spec])
+    assert result.exit_code == 2, result.output
+    assert "grasp sigma must be finite and >= 0, box fraction in [0, 1)" in flat(result.output)
+
+
+def test_static_unknown_grasp_backend_fails_before_the_scenes() -> None:
+    result = run(["eval", "static", "--grasp", "grconvnet,bogus"])
+    assert result.exit_code == 2, result.output
+    assert "--grasp: unknown grasp backend(s) bogus; choose from grconvnet" in flat(result.output)
+    assert "episodes" not in result.output  # no progress bar: nothing was drawn or rendered
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc, where no file can be created")
+@pytest.mark.parametrize("args", [["eval", "zhu", "--markdown", "/proc/x.md"],
+                                  ["eval", "open-world", "--json", "/proc/nope/x.json"]])
+def test_an_output_that_cannot_be_written_is_named_not_a_traceback(args: list[str]) -> None:
+    """The up-front check catches a parent that is a file; a mount that refuses writes (here
+    /proc), a race or a full disk is found only when writing, which raised a traceback."""
+    result = run(args)
+    assert result.exit_code == 2, result.output
+    assert f"{args[-1]}: cannot write it" in flat(result.output)
+
+
+def test_emit_names_an_output_it_cannot_write(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from craft_e.runtime.cli.common import emit
+    from craft_e.runtime.evaluation import common
+
+    def refused(path: Path, data: object) -> None:
+        raise OSError(30, "Read-only file system", str(path))
+
+    monkeypatch.setattr(common, "write_json", refused)
+    with pytest.raises(typer.Exit) as stopped:
+        emit("| t |\n", {}, tmp_path / "r.json", None, lambda _: None)
+    assert stopped.value.exit_code == 2

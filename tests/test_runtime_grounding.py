@@ -124,6 +124,26 @@ def test_open_vocab_fallback_is_flagged(runtime_kbs: RuntimeKBs) -> None:
     assert not g.ground("pour", rois).open_vocab_used
 
 
+def test_non_finite_or_mixed_width_roi_inputs_name_the_roi(runtime_kbs: RuntimeKBs) -> None:
+    """NaN embeddings or grasp scores ranked the ROI with a NaN total, silently; a vector of
+    another width beside a right one failed inside numpy's stack, naming neither ROI nor field."""
+    g = Grounder(load_bundle(runtime_kbs.kb))
+    good = ROI((0, 0, 1, 1), [0.9], image_embedding=obj_emb(runtime_kbs, "cleaver"))
+    nan = np.full(good.image_embedding.shape, np.nan, np.float32)  # type: ignore[union-attr]
+    cases = [(ROI((0, 0, 1, 1), [0.9], image_embedding=nan), "ROI 1: image_embedding holds NaN or infinite"),
+             (ROI((0, 0, 1, 1), [0.9], image_embedding=nan * 0 + np.inf), "ROI 1: image_embedding holds NaN"),
+             (ROI((0, 0, 1, 1), [float("nan"), 0.5], image_embedding=obj_emb(runtime_kbs, "cup")),
+              r"ROI 1: grasp_scores \[nan, 0.5\] hold NaN or infinite values"),
+             (ROI((0, 0, 1, 1), [0.9], image_embedding=np.ones(10, np.float32)),
+              "ROI 1: image_embedding has 10 values, the bundle's text space")]
+    for bad, says in cases:
+        with pytest.raises(ValueError, match=says):
+            g.ground("cut", [good, bad])
+    with pytest.raises(ValueError, match=r"image embeddings hold NaN or infinite values \(row 0\)"):
+        g.image_hypotheses(nan[None, :])
+    assert np.isfinite(g.ground("cut", [good]).ranked[0].total)
+
+
 def test_vocabulary_subset_and_unknown_objects(runtime_kbs: RuntimeKBs) -> None:
     kb = load_bundle(runtime_kbs.kb)
     g = Grounder(kb, GroundingSettings(vocabulary=["cup", "Bananas", "kettle"]))

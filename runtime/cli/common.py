@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -39,6 +40,18 @@ def fail(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     """Print ``error: message`` on stderr and exit with ``code`` (default: bad input)."""
     err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def emit(table: str, data: dict[str, Any], json_out: Path | None, markdown: Path | None,
+         log: Callable[[str], None]) -> None:
+    """``evaluation.common.emit_report``, with an output file that cannot be written (a
+    read-only mount, a full disk) an exit-2 error naming it instead of a traceback."""
+    from ..evaluation.common import ReportWriteError, emit_report
+
+    try:
+        emit_report(table, data, json_out, markdown, log)
+    except ReportWriteError as exc:
+        fail(str(exc))
 
 
 def check_named_bundles(kbs: list[Path] | Path | None, kb_dir: Path | None = None) -> None:

@@ -127,11 +127,17 @@ class Report(Protocol):
     def to_dict(self) -> dict[str, Any]: ...
 
 
-def split_names(values: list[str] | None) -> list[str] | None:
-    """``--methods A,B --methods C`` → ``[A, B, C]`` (None when not given)."""
+def split_names(values: list[str] | None, option: str = "--methods") -> list[str] | None:
+    """``--methods A,B --methods C`` → ``[A, B, C]`` (None when not given); exit 2 on an empty
+    name (``--methods ''``, ``CRAFT-E,,``): dropped silently, ``''`` ran the default methods, as
+    if the option had not been given."""
     if not values:
         return None
-    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+    names = [n.strip() for v in values for n in v.split(",")]
+    if not all(names):
+        fail(f"{option} {','.join(values)!r}: an empty name (a blank value or a doubled comma); "
+             "give each name, comma-separated, or leave the option out for the defaults")
+    return names
 
 
 def check_labels(path: Path) -> SimLabels:
@@ -250,7 +256,7 @@ def run_with_progress(
 ) -> Report:
     """Run ``evaluate(progress)`` under a progress bar; ``errors`` become exit code 2. Prints
     ``<config[count]> <unit> in N s`` and writes the Markdown table and JSON where asked."""
-    from ..evaluation.common import emit_report
+    from .common import emit
 
     start = time.perf_counter()
     try:
@@ -259,5 +265,5 @@ def run_with_progress(
     except errors as exc:
         fail(str(exc))
     err.print(f"{report.config[count]} {unit} in {time.perf_counter() - start:.0f} s", highlight=False)
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
+    emit(report.to_markdown(), report.to_dict(), json_out, markdown, note)
     return report

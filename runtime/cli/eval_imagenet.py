@@ -47,9 +47,9 @@ def eval_imagenet(
                                                        "they are also the p(o|r) vocabulary.")] = None,
 ) -> None:
     """Nguyen et al.'s ImageNet functional-grounding protocol: every method on the same episodes."""
-    from ..evaluation.common import emit_report
     from ..evaluation.imagenet import evaluate_imagenet
     from ..kb.bundle import BundleError
+    from .common import emit
 
     given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
                             beta, gamma, sense_weight, conse_temperature)
@@ -60,4 +60,4 @@ def eval_imagenet(
     # raises from the Grounder (e.g. a malformed open_world.json), which names the file and the fix
     except (ValueError, FileNotFoundError, BundleError) as exc:
         fail(str(exc))
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
+    emit(report.to_markdown(), report.to_dict(), json_out, markdown, note)

@@ -29,12 +29,11 @@ def eval_kb(
 ) -> None:
     """Knowledge alone: AP, AUC and 5-candidate top-1 of E_aff per verb, chance and oracle rows,
     and leave-verbs-out choice of the E_aff form."""
-    from ..evaluation.common import emit_report
     from ..evaluation.kb_eval import DEFAULT_KBS, KBLabelsError, evaluate_kbs
     from ..evaluation.methods import NoMethodToRunError
     from ..grounding.energies import ENERGY_FORMS, check_energy_form
     from ..kb.bundle import BundleError
-    from .common import check_named_bundles, err, fail, read_some_names
+    from .common import check_named_bundles, emit, err, fail, read_some_names
 
     check_named_bundles(kb)
     try:
@@ -47,5 +46,5 @@ def eval_kb(
                               episodes_per_verb=episodes, seed=seed, folds=folds, objects=candidates)
     except (KBLabelsError, FileNotFoundError, NoMethodToRunError, BundleError) as exc:
         fail(str(exc))
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+    emit(report.to_markdown(), report.to_dict(), json_out, markdown,
                 lambda msg: err.print(msg, highlight=False, markup=False))

@@ -23,12 +23,11 @@ def eval_open_world(
 ) -> None:
     """Objects and verbs the KB has never seen: remove them, infer them, compare AP with the
     in-KB result; abstention rate and precision; the thresholds' dev grid."""
-    from ..evaluation.common import emit_report
     from ..evaluation.kb_eval import KBLabelsError
     from ..evaluation.open_world_eval import evaluate_open_world
     from ..grounding.energies import check_energy_form
     from ..kb.bundle import BundleError
-    from .common import err, fail
+    from .common import emit, err, fail
 
     try:
         form = check_energy_form(energy_form) if energy_form else None
@@ -36,5 +35,5 @@ def eval_open_world(
                                      episodes_per_verb=episodes, seed=seed)
     except (KBLabelsError, FileNotFoundError, BundleError, ValueError) as exc:
         fail(str(exc))
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown,
+    emit(report.to_markdown(), report.to_dict(), json_out, markdown,
                 lambda msg: err.print(msg, highlight=False, markup=False))

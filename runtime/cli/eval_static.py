@@ -54,7 +54,7 @@ def eval_static(
     """Rendered scenes, no execution: success = right ROI (IoU ≥ 0.5) and a correct grasp (Cornell)."""
     from ...paths import SIM_DEV_LABELS
     from ..evaluation.sim_eval import LabelsError
-    from ..evaluation.static_eval import evaluate_static, parse_noise
+    from ..evaluation.static_eval import GRASP_BACKENDS, evaluate_static, parse_noise
     from ..sim.assets import SharedAssetsMissingError
     from ..sim.env import EnvConfig
     from ..sim.episode import in_view_layout
@@ -66,13 +66,17 @@ def eval_static(
     except ValueError as exc:
         fail(str(exc))
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
+    backends = ep.split_names(grasp, "--grasp") or ["grconvnet"]
+    unknown = [b for b in backends if b not in GRASP_BACKENDS]
+    if unknown:  # before the scenes are drawn (the evaluation checked it only after ~17 s)
+        fail(f"--grasp: unknown grasp backend(s) {', '.join(unknown)}; choose from {', '.join(GRASP_BACKENDS)}")
     ep.check_labels(labels_path)
     ep.check_classifier(classifier)
     settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
                                   colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness,
                                   sense_weight=sense_weight, conse_temperature=conse_temperature)
     ep.run_with_progress(
-        lambda bar: evaluate_static(labels_path, backends=ep.split_names(grasp) or ["grconvnet"],
+        lambda bar: evaluate_static(labels_path, backends=backends,
                                     layouts=layouts, seed=seed, methods=specs, max_pairs=max_pairs,
                                     noise=levels, threads=threads, settings=settings, progress=bar,
                                     jobs=jobs, classifier=classifier,

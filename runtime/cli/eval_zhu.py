@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from ...paths import KB_DIR, shared_dir
-from .common import checked_markdown_file, checked_output_file
+from .common import checked_markdown_file, checked_output_file, fail
 
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "conceptnet", KB_DIR / "direct-llm"]
 
@@ -38,7 +38,6 @@ def eval_zhu(
     )
     from ..grounding.energies import ENERGY_FORMS
     from ..kb.bundle import BundleError, load_bundle
-    from .common import fail
 
     path = matrix or shared_dir() / "data/affordance_dev/zhu2014_affordance_matrix.csv"
     if not path.is_file():
@@ -69,8 +68,15 @@ def eval_zhu(
             f"Produced by `craft eval zhu{kbs}{outputs}` (columns: bundle and "
             "E_aff form; `chance` = positive rate).\n\n"
         )
-        markdown.write_text(header + table, encoding="utf-8")
+        _write(markdown, header + table)
     if json_out is not None:
-        json_out.write_text(
-            json.dumps(columns, indent=1, sort_keys=True) + "\n", encoding="utf-8"
-        )
+        _write(json_out, json.dumps(columns, indent=1, sort_keys=True) + "\n")
+
+
+def _write(path: Path, text: str) -> None:
+    """Write an output file, or exit 2 naming it (a read-only mount, a full disk: a traceback before)."""
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        fail(f"{path}: cannot write it ({exc.strerror or exc}); the table above is the whole result — "
+             "give another path to keep it as a file")

@@ -55,9 +55,9 @@ def robustness_imagenet(
     energy_form: EnergyFormOpt = None,
 ) -> None:
     """Top-1 / MRR of every method as Gaussian noise, blur and ROI crop jitter grow."""
-    from ..evaluation.common import emit_report
     from ..evaluation.imagenet import LabelsError
     from ..evaluation.robustness import DEFAULT_LEVELS, evaluate_robustness, parse_levels
+    from .common import emit
 
     given = protocol_inputs(kb, kb_dir, classes, no_cache, temperature, aff_mode, energy_form,
                             beta, gamma)
@@ -71,7 +71,7 @@ def robustness_imagenet(
                                      cache_dir=given.cache_dir, threads=threads, settings=given.settings)
     except (LabelsError, FileNotFoundError, ValueError) as exc:
         fail(str(exc))
-    emit_report(report.to_markdown(), report.to_dict(), json_out, markdown, note)
+    emit(report.to_markdown(), report.to_dict(), json_out, markdown, note)
     if plot is not None:
         report.plot(plot)
         note(f"wrote {plot}")

@@ -238,13 +238,27 @@ def emit_report(
     import sys
 
     sys.stdout.write(table)
-    if json_out is not None:
-        write_json(json_out, data)
-        log(f"wrote {json_out}")
-    if markdown is not None:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
-        markdown.write_text(table, encoding="utf-8")
-        log(f"wrote {markdown}")
+    writes: list[tuple[Path | None, Callable[[Path], None]]] = [
+        (json_out, lambda p: write_json(p, data)), (markdown, lambda p: _write_markdown(p, table))]
+    for path, write in writes:
+        if path is None:
+            continue
+        try:
+            write(path)
+        except OSError as exc:  # checked up front for what can be; a mount, a race, a full disk cannot
+            raise ReportWriteError(
+                f"{path}: cannot write it ({exc.strerror or exc}); the table above is the whole result — "
+                "give another path to keep it as a file") from None
+        log(f"wrote {path}")
+
+
+class ReportWriteError(ValueError):
+    """An evaluation's output file could not be written; the message names it (the CLI's exit 2)."""
+
+
+def _write_markdown(path: Path, table: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(table, encoding="utf-8")
 
 
 def verb_object_lists(

@@ -182,8 +182,8 @@ def parse_noise(spec: str) -> NoiseLevel:
             values[key] = float(raw)
         except ValueError:
             raise ValueError(f"--noise {spec!r}: {raw!r} is not a number") from None
-    if values["grasp"] < 0 or not 0 <= values["box"] < 1:
-        raise ValueError(f"--noise {spec!r}: grasp sigma must be >= 0 and box fraction in [0, 1)")
+    if not 0 <= values["grasp"] < float("inf") or not 0 <= values["box"] < 1:  # NaN fails both
+        raise ValueError(f"--noise {spec!r}: grasp sigma must be finite and >= 0, box fraction in [0, 1)")
     return NoiseLevel(values["grasp"], values["box"])
 
 

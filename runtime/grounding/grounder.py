@@ -737,11 +737,29 @@ class Grounder:
         measures the perception the grounder acts on."""
         return self._image_hypotheses(self._checked_unit_rows(embeddings))
 
+    def _checked_roi(self, index: int, roi: ROI) -> FloatArray:
+        """ROI ``index``'s embedding as a ``[d]`` vector, or a ``ValueError`` naming the ROI and
+        the field: a vector of another width (numpy's own error named neither), and NaN or
+        infinite embeddings or grasp scores, which ranked the ROI with a NaN total, silently."""
+        vec = np.asarray(roi.image_embedding, dtype=np.float32).reshape(-1)
+        if vec.shape[0] != self.dim:
+            raise ValueError(f"ROI {index}: image_embedding has {vec.shape[0]} values, the bundle's text space "
+                             f"{self.dim}; was the image encoder built for another text encoder?")
+        if not np.isfinite(vec).all():
+            raise ValueError(f"ROI {index}: image_embedding holds NaN or infinite values")
+        if not np.isfinite(np.asarray(roi.grasp_scores, dtype=np.float64)).all():
+            raise ValueError(f"ROI {index}: grasp_scores {list(roi.grasp_scores)} hold NaN or infinite values; "
+                             "they are grasp qualities in [0, 1]")
+        return vec
+
     def _checked_unit_rows(self, embeddings: npt.NDArray[Any]) -> FloatArray:
         emb = _unit_rows(embeddings)  # [N, d]
         if emb.ndim != 2 or emb.shape[1] != self.dim:
             raise ValueError(f"image embeddings must be [N, {self.dim}] (the bundle's text space), "
                              f"got {tuple(emb.shape)}; was the image encoder built for another text encoder?")
+        if not np.isfinite(emb).all():  # NaN would rank silently (every total NaN)
+            row = int(np.flatnonzero(~np.isfinite(emb).all(axis=1))[0])
+            raise ValueError(f"image embeddings hold NaN or infinite values (row {row})")
         return emb
 
     def _image_hypotheses(self, emb: FloatArray) -> FloatArray:
@@ -801,7 +819,7 @@ class Grounder:
         ranked: list[RankedROI] = []
         size_cue_used = colour_cue_used = lookalike_cue_used = cavity_cue_used = False
         if usable:
-            emb = np.stack([np.asarray(rois[i].image_embedding, dtype=np.float32).reshape(-1) for i in usable])  # [N, d]
+            emb = np.stack([self._checked_roi(i, rois[i]) for i in usable])  # [N, d]
             best_grasp = [max(range(len(rois[i].grasp_scores)), key=rois[i].grasp_scores.__getitem__) for i in usable]
             gmax = np.array([rois[i].grasp_scores[g] for i, g in zip(usable, best_grasp, strict=True)], dtype=np.float32)
             # the cues' measurements, gathered only for a cue that is on (NaN rows: not measured)
