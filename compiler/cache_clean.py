@@ -53,6 +53,16 @@ class ReferencesError(ValueError):
     """The references could not be determined (a bundle unreadable, no referencing input)."""
 
 
+def check_modes(modes: Sequence[str]) -> None:
+    """``ReferencesError`` naming the first mode that is none of ``CLEAN_MODES``. ``craftc cache
+    clean`` checks ``--mode`` before anything else: without ``--verbs`` the modes were never read,
+    so a typo passed silently."""
+    for mode in modes:
+        if mode not in CLEAN_MODES:
+            raise ReferencesError(f"--mode {mode!r}: unknown mode; choose from {', '.join(CLEAN_MODES)} "
+                                  "(repeatable); nothing deleted")
+
+
 #: bundle files whose ``objects`` name the record each answer came from
 PERCEPTION_FILES = ("object_sizes.json", "object_colours.json", "object_lookalikes.json")
 
@@ -153,6 +163,7 @@ def build_references(
 ) -> set[str]:
     """Keys of every record a replay build of these inputs reads (``MissingRecordError`` if one
     is missing: then the build's references cannot be known and nothing may be deleted)."""
+    check_modes(modes)  # every mode before the work of any
     verb_vocab = read_vocabulary(verbs_file, kind="verbs")
     verbs, senses = verb_vocab.names, verb_vocab.glosses
     vocab = read_vocabulary(objects_file, kind="objects")
@@ -160,8 +171,6 @@ def build_references(
     source = _TrackingSource(cache=cache, provider=provider, model=model)
     keys: set[str] = set()
     for mode in modes:
-        if mode not in CLEAN_MODES:
-            raise ReferencesError(f"unknown mode {mode!r}; choose from {', '.join(CLEAN_MODES)}")
         if mode in ("llm", "llm+direct"):
             draft = llm_property_draft(
                 source, verbs, objects, version=prompt_version, glosses=glosses, verb_glosses=senses

@@ -29,6 +29,7 @@ from ..paths import CACHE_DIR, KB_DIR, VOCAB_DIR, artifacts_hint
 from ..runtime.cli.common import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, err, fail, make_console
 from ..signals import exit_through_python_on_sigterm
 from .cli_diagnose import register as register_diagnose
+from .cli_options import TrustedKeyOpt, trusted_keys
 from .cli_pack import register as register_pack
 from .prompts import DEFAULT_PROMPT_VERSION, PROMPT_VERSIONS
 
@@ -67,19 +68,40 @@ def _prompt_version(version: str) -> Literal["v1", "v2"]:
     fail(f"unknown prompt version {version!r}; choose one of {', '.join(PROMPT_VERSIONS)}")
 
 
-CacheOpt = Annotated[
-    Path, typer.Option(help="Record cache root (artifacts/cache).", envvar="CRAFT_CACHE")
-]
+def _cache_problem(cache: Path, *, must_exist: bool) -> str | None:
+    """What is wrong with a ``--cache`` (or ``CRAFT_CACHE``) path, or None: a path that is a file
+    is never a record cache (reading records below it raised NotADirectoryError, and the cache
+    commands called it "no such folder"); one that does not exist is a typo where ``must_exist``
+    (``cache verify`` on it would pass a CI gate having checked nothing)."""
+    if cache.exists() and not cache.is_dir():
+        return (f"{cache}: is a file, not a record cache folder; give the cache's folder (e.g. "
+                "artifacts/cache), from --cache or CRAFT_CACHE")
+    if must_exist and not cache.is_dir():
+        return f"{cache}: no such record cache folder; check the path (or CRAFT_CACHE)"
+    return None
 
 
-def _existing_cache(cache: Path) -> Path:
-    """typer callback of the cache commands' --cache: a cache that does not exist is a typo, not
-    an empty cache (``cache verify`` on it would pass a CI gate having checked nothing)."""
-    if not cache.is_dir():
-        raise typer.BadParameter(f"{cache}: no such record cache folder; check the path (or CRAFT_CACHE)")
+# typer passes a callback's value to its last plain parameter: each callback takes only ``cache``
+def _cache_folder(cache: Path) -> Path:
+    """typer callback of --cache where the cache may be made: refused when it is a file."""
+    problem = _cache_problem(cache, must_exist=False)
+    if problem is not None:
+        raise typer.BadParameter(problem)
     return cache
 
 
+def _existing_cache(cache: Path) -> Path:
+    """typer callback of the cache commands' --cache: an existing folder (see _cache_problem)."""
+    problem = _cache_problem(cache, must_exist=True)
+    if problem is not None:
+        raise typer.BadParameter(problem)
+    return cache
+
+
+CacheOpt = Annotated[
+    Path, typer.Option(help="Record cache root (artifacts/cache).", envvar="CRAFT_CACHE",
+                       callback=_cache_folder)
+]
 ExistingCacheOpt = Annotated[
     Path, typer.Option(help="Record cache root (artifacts/cache); must exist.", envvar="CRAFT_CACHE",
                        callback=_existing_cache)
@@ -364,30 +386,6 @@ def _progress(quiet: bool) -> Progress:
     )
 
 
-TrustedKeyOpt = Annotated[
-    list[Path] | None,
-    typer.Option(
-        "--trusted-key",
-        help="Signer's public key file (craft-signing.pub) when a bundle is a packed .craft file; "
-        "repeatable.",
-    ),
-]
-
-
-def _trusted_keys(keys: list[Path] | None) -> list[str] | None:
-    """``--trusted-key`` files for ``load_bundle``: a packed bundle (.craft) is read only when one
-    of them signed it. A key that cannot be read or is no public key is bad usage (exit 2), not a
-    bundle that failed its check, so each is read here first."""
-    from ..runtime.kb.package import PackageError, parse_public_key
-
-    for key in keys or []:
-        try:
-            parse_public_key(str(key))
-        except PackageError as exc:
-            fail(f"--trusted-key {key}: {exc}")
-    return [str(k) for k in keys] if keys else None
-
-
 @app.command()
 def validate(
     bundle: Annotated[
@@ -399,7 +397,7 @@ def validate(
     from ..runtime.kb.bundle import BundleError
     from .bundle_checks import load_and_check
 
-    keys = _trusted_keys(trusted_key)
+    keys = trusted_keys(trusted_key)
     try:  # then E_aff and graph.ttl recomputed from graph.json: what loading skips
         kb = load_and_check(bundle, keys)
     except BundleError as exc:
@@ -441,7 +439,7 @@ def diff(
         fail(f"unknown format {format!r}; use md or json")
     try:
         parse_rules(fail_on or [])  # a typo in a gate fails before any output, not after
-        keys = _trusted_keys(trusted_key)
+        keys = trusted_keys(trusted_key)
         a = load_bundle(old, check_encoder=False, trusted_keys=keys)
         b = load_bundle(new, check_encoder=False, trusted_keys=keys)
         result = diff_bundles(a, b, top_k=top_k, threshold=threshold)
@@ -471,7 +469,7 @@ def explain(
     from ..runtime.grounding.explain import UnknownNameError, explain_pair
     from ..runtime.kb.bundle import BundleError, load_bundle
 
-    keys = _trusted_keys(trusted_key)
+    keys = trusted_keys(trusted_key)
     try:
         kb = load_bundle(bundle, check_encoder=False, trusted_keys=keys)
         text = explain_pair(kb, verb, obj).render()
@@ -482,22 +480,30 @@ def explain(
 
 @app.command()
 def review(
-    bundle: Annotated[Path, typer.Argument(help="Bundle folder.")],
+    bundle: Annotated[
+        Path, typer.Argument(help="Bundle folder, or a signed .craft file (with --trusted-key).")
+    ],
     sample: Annotated[
         int, typer.Option(min=1, help="How many random verb -> property -> object paths.")
     ] = 20,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    trusted_key: TrustedKeyOpt = None,
 ) -> None:
     """Print random verb -> property -> object paths with weights, for a human read."""
     import random
 
+    from ..runtime.cli.common import note
     from ..runtime.kb.bundle import BundleError, load_bundle
 
+    keys = trusted_keys(trusted_key)
     try:
-        kb = load_bundle(bundle, check_encoder=False)
+        kb = load_bundle(bundle, check_encoder=False, trusted_keys=keys)
     except BundleError as exc:
         fail(str(exc))
     paths = kb.paths()
+    if sample > len(paths):  # as --jobs beyond the CPUs: said, then done with what there is
+        note(f"--sample {sample}: the bundle has {len(paths)} verb -> property -> object paths; "
+             f"printing all {len(paths)}")
     rng = random.Random(seed)
     for p in rng.sample(paths, min(sample, len(paths))):
         sys.stdout.write(f"{p.verb} -({p.w_vp:.2f})-> {p.prop} -({p.w_po:.2f})-> {p.obj}\n")
@@ -640,12 +646,19 @@ def cache_clean(
         ReferencesError,
         build_references,
         bundle_references,
+        check_modes,
         plan_clean,
         with_siblings,
     )
     from .sources.llm import LLM_SOURCE, SourceError
     from .vocab import VocabError
 
+    # every option before the lock and the plan, with or without --verbs (which alone reads them)
+    try:
+        check_modes(mode or [])
+    except ReferencesError as exc:
+        fail(str(exc))
+    version = _prompt_version(prompts)
     if yes:  # plan and delete while no build or curate record runs on this cache (held to the end)
         try:
             ctx.with_resource(cache_for_cleaning(cache))
@@ -661,7 +674,7 @@ def cache_clean(
         if verbs is not None:
             referenced |= build_references(
                 store, verbs, objects, mode or ["llm"], provider=record_provider, model=model,
-                prompt_version=_prompt_version(prompts), property_pass=property_pass,
+                prompt_version=version, property_pass=property_pass,
             )
         elif not graphs:
             fail("no bundle found to keep records for (--bundles) and no build given (--verbs); "

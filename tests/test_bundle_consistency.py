@@ -280,6 +280,27 @@ def test_validate_explain_and_diff_read_a_signed_package_with_trusted_key(tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kb.craft", "keys"]
 
 
+def test_review_and_diagnose_read_a_signed_package_with_trusted_key(tmp_path: Path) -> None:
+    """``craftc review`` and ``craftc diagnose`` had no --trusted-key: a .craft file was refused
+    with advice naming an option they did not take ("No such option" when given)."""
+    folder = make_bundle(tmp_path / "kb")
+    pair = keygen(tmp_path / "keys")
+    package = pack_bundle(folder, pair.private_key, tmp_path / "kb.craft").out
+    reviewed = craftc("review", package, "--sample", "2", "--trusted-key", pair.public_key)
+    assert reviewed.exit_code == 0, reviewed.output
+    assert reviewed.stdout == craftc("review", folder, "--sample", "2").stdout != ""
+    diagnosed = craftc("diagnose", package, "--format", "json", "--trusted-key", pair.public_key)
+    assert diagnosed.exit_code == 0, diagnosed.output
+    assert diagnosed.stdout == craftc("diagnose", folder, "--format", "json").stdout
+    for command in (("review", package), ("diagnose", package)):
+        unkeyed = craftc(*command)  # the advice names an option the command has
+        assert unkeyed.exit_code == 2 and "--trusted-key" in unkeyed.output, unkeyed.output
+        missing = craftc(*command, "--trusted-key", tmp_path / "nope.pub")
+        assert missing.exit_code == 2 and "--trusted-key" in missing.output and "no such file" in missing.output
+    shutil.rmtree(folder)  # nothing of the package was left unpacked beside it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kb.craft", "keys"]
+
+
 # -- E_aff recomputed from the graph: craftc validate and craftc pack ------------------------------
 
 

@@ -1,6 +1,7 @@
-"""Bad input to ``craft ground``, ``craft eval imagenet``/``kb``, ``craft sim demo`` and ``craftc
-curate record``: exit 2 with a message naming the option or file and the problem, before any model
-or bundle loads, never a traceback, a NaN result or a run that does nothing and exits 0."""
+"""Bad input to ``craft ground``, ``craft eval imagenet``/``kb``/``sim``/``robustness``, ``craft sim
+demo`` and ``craftc curate``/``diagnose``/``cache``: exit 2 with a message naming the option or file
+and the problem, before any model or bundle loads, never a traceback, a NaN result or a run that
+does nothing and exits 0."""
 
 from __future__ import annotations
 
@@ -266,3 +267,128 @@ def test_emit_names_an_output_it_cannot_write(tmp_path: Path, monkeypatch: pytes
     with pytest.raises(typer.Exit) as stopped:
         emit("| t |\n", {}, tmp_path / "r.json", None, lambda _: None)
     assert stopped.value.exit_code == 2
+
+
+# --------------------------------------------------------------------------- craftc diagnose / review / cache
+
+
+def test_diagnose_refuses_an_unknown_energy_form_beside_all(tmp_path: Path) -> None:
+    """``--energy-form all --energy-form bogus`` diagnosed every form and ignored ``bogus``
+    (exit 0); a lone unknown form was named only after the bundle loaded."""
+    shipped = Path(__file__).resolve().parents[1] / "artifacts" / "kb" / "craft-e-default"
+    for bundle in (shipped, tmp_path / "no-kb"):  # the missing bundle: refused before loading it
+        result = run(["diagnose", bundle, "--energy-form", "all", "--energy-form", "bogus", "--format", "json"],
+                     craftc)
+        assert ("--energy-form 'bogus': unknown E_aff form; use one of sum-tanh, normalized-product, "
+                "specificity, required-veto, specificity-veto, or all (every form)") in flat(result.output)
+        assert "content_sha256" not in result.stdout
+    two = run(["diagnose", tmp_path / "no-kb", "--energy-form", "veto", "--energy-form", "sum-tanh",
+               "--energy-form", "x"], craftc)
+    assert "--energy-form 'veto', 'x': unknown E_aff forms" in flat(two.output)
+
+
+def test_review_says_when_the_sample_is_capped(kb_a: Any) -> None:
+    """``--sample 1000000`` printed every path without a word: a reader took it for a sample."""
+    from craft_e.runtime.kb.bundle import load_bundle
+
+    paths = len(load_bundle(kb_a.bundle, check_encoder=False).paths())
+    result = runner.invoke(craftc, ["review", str(kb_a.bundle), "--sample", "1000000"], env={"COLUMNS": "300"})
+    assert result.exit_code == 0, result.output
+    assert len(result.stdout.splitlines()) == paths
+    assert result.stderr.strip() == (f"--sample 1000000: the bundle has {paths} verb -> property -> object paths; "
+                                     f"printing all {paths}")
+    within = runner.invoke(craftc, ["review", str(kb_a.bundle), "--sample", str(paths)])
+    assert within.exit_code == 0 and within.stderr == "", within.output
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (["--mode", "bogus"], "--mode 'bogus': unknown mode; choose from llm, direct, llm+direct"),
+    (["--mode", "llm", "--mode", "direkt"], "--mode 'direkt': unknown mode"),
+    (["--prompts", "v9"], "unknown prompt version 'v9'; choose one of v1, v2"),
+])
+@pytest.mark.parametrize("yes", [[], ["--yes"]])
+def test_cache_clean_refuses_unknown_modes_without_verbs(tmp_path: Path, option: list[str], message: str,
+                                                         yes: list[str]) -> None:
+    """The modes and prompt version of the build to keep were read only with ``--verbs``: without
+    it a typo passed (a dry run or a clean, exit 0)."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    result = run(["cache", "clean", "--cache", cache, *option, *yes], craftc)
+    assert message in flat(result.output)
+    assert list(cache.iterdir()) == []  # refused before the clean's lock is taken
+
+
+@pytest.mark.parametrize("command", [["cache", "verify"], ["cache", "index"], ["cache", "stats"], ["cache", "clean"],
+                                     ["curate", "pending"], ["build", "--verbs", str(KB_SMALL / "verbs.txt")]])
+def test_a_file_given_as_the_cache_is_called_a_file(tmp_path: Path, command: list[str]) -> None:
+    """The cache commands said "no such record cache folder" of a file that exists; ``curate
+    pending`` raised NotADirectoryError (a traceback)."""
+    afile = tmp_path / "cache.txt"
+    afile.write_text("not a cache\n", encoding="utf-8")
+    result = run([*command, "--cache", afile, *(["--out", tmp_path / "b"] if command[0] == "build" else [])],
+                 craftc)
+    assert f"{afile}: is a file, not a record cache folder; give the cache's folder" in flat(result.output)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache.txt"]
+
+
+# --------------------------------------------------------------------------- eval sim / robustness before models
+
+
+def never(what: str) -> Any:
+    """A stand-in for a loader the command must not reach: a call is a test failure (exit 1)."""
+
+    def called(*args: object, **kwargs: object) -> None:
+        raise AssertionError(f"{what} ran before the bad input was refused")
+
+    return called
+
+
+SIM_LABELS = Path(__file__).resolve().parents[1] / "artifacts" / "labels" / "sim_dev_labels.csv"
+
+
+@pytest.mark.parametrize("bad", ["energy-form", "labels"])
+def test_eval_sim_checks_the_energy_form_and_labels_before_the_pipeline(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, bad: str) -> None:
+    """The simulator and grasp pipeline, the --kb bundles and the classifier (torch) were set up
+    first: a typo was named seconds later (~15-20 s on a busy machine)."""
+    from craft_e.runtime.cli import episodes
+
+    for name in ("pick_pipeline", "scene_methods", "check_classifier"):
+        monkeypatch.setattr(episodes, name, never(f"episodes.{name}"))
+    labels = tmp_path / "labels.json"
+    labels.write_text('{"cut": ["knife"]}', encoding="utf-8")
+    if bad == "energy-form":
+        result = run(["eval", "sim", "--labels", SIM_LABELS, "--energy-form", "bogus"])
+        assert "--energy-form 'bogus': use one of sum-tanh, normalized-product" in flat(result.output)
+    else:
+        result = run(["eval", "sim", "--labels", labels])
+        assert f"{labels}: sim labels are a CSV, not JSON" in flat(result.output)
+
+
+def test_eval_robustness_checks_the_labels_before_the_image_encoder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The ConSE image encoder (and the recognition row's bundle) loaded before the labels were
+    read, so bad labels failed only after the model had loaded."""
+    import craft_e.runtime.encoders.conse as conse
+    import craft_e.runtime.evaluation.imagenet as imagenet
+    import craft_e.runtime.kb.bundle as bundle
+
+    monkeypatch.setattr(conse, "ConSEImageEncoder", never("the ConSE image encoder"))
+    monkeypatch.setattr(imagenet, "_default_encoder", never("the default image encoder"))
+    monkeypatch.setattr(bundle, "load_bundle", never("load_bundle"))
+    labels = tmp_path / "labels.json"
+    labels.write_text('{"cut": []}', encoding="utf-8")
+    result = run(["eval", "robustness", "imagenet", "--labels", labels, "--episodes", "1"])
+    assert f"{labels}: 'cut' lists no objects" in flat(result.output)
+
+
+@pytest.mark.parametrize("command", [["eval", "imagenet"], ["eval", "robustness", "imagenet"]])
+def test_imagenet_energy_form_is_checked_before_the_named_bundles(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: list[str]) -> None:
+    import craft_e.runtime.kb.bundle as bundle
+
+    monkeypatch.setattr(bundle, "load_bundle", never("load_bundle"))
+    labels = tmp_path / "labels.json"
+    labels.write_text('{"cut": ["cleaver"]}', encoding="utf-8")
+    result = run([*command, "--labels", labels, "--kb", tmp_path / "kb", "--energy-form", "bogus"])
+    assert "--energy-form 'bogus': use one of sum-tanh" in flat(result.output)

@@ -62,21 +62,23 @@ def eval_sim(
     in_view: ep.InViewOpt = True,
 ) -> None:
     """The paper's real-world protocol in simulation: 1 target + 4 distractors, 3 layouts per pair."""
-    from ..evaluation.methods import NoMethodToRunError
-    from ..evaluation.sim_eval import LabelsError, evaluate_sim
-    from ..grounding.size_cue import CueUnavailableError
-    from ..sim.retry import RetryConfig
-
+    # the settings and the labels first: the pipeline and the classifier check import torch and the
+    # simulator, and --kb loads bundles (seconds, more on a cold or busy machine) before a typo was named
+    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
+                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness,
+                                  sense_weight=sense_weight, conse_temperature=conse_temperature)
+    ep.check_labels(labels)
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
                                           prefer_clear=prefer_clear, grasp_checks=grasp_checks,
                                           max_grasps=max_grasps, active_look=active_look, in_view=in_view)
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
-    ep.check_labels(labels)
     ep.check_classifier(classifier)
-    settings = grounding_settings(energy_form=energy_form, aff_mode=aff_mode, aff_norm=aff_norm, size_cue=size_cue,
-                                  colour_cue=colour_cue, lookalikes=lookalikes, cavity_cue=cavity_cue, hubness=hubness,
-                                  sense_weight=sense_weight, conse_temperature=conse_temperature)
+    from ..evaluation.methods import NoMethodToRunError
+    from ..evaluation.sim_eval import LabelsError, evaluate_sim
+    from ..grounding.size_cue import CueUnavailableError
+    from ..sim.retry import RetryConfig
+
     ep.run_with_progress(
         lambda bar: evaluate_sim(labels, config=config, layouts=layouts, seed=seed, methods=specs,
                                  max_pairs=max_pairs, settings=settings, progress=bar, jobs=jobs,

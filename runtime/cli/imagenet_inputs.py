@@ -43,10 +43,10 @@ def protocol_inputs(
     from ..evaluation.methods import default_methods
     from .common import check_named_bundles
 
-    # the classes first: an empty file fails at once, not after the bundles (or the images) load
+    # the classes and the settings first: a typo fails at once, not after the bundles (or the images) load
     pool = read_some_names(classes, "classes file", "--classes") if classes is not None else None
-    check_named_bundles(kb, kb_dir)
     settings = grounding_settings(temperature=temperature, aff_mode=aff_mode, energy_form=energy_form,
                                   sense_weight=sense_weight, conse_temperature=conse_temperature)
+    check_named_bundles(kb, kb_dir)
     return ProtocolInputs(default_methods(kb, kb_dir or KB_DIR, beta=beta, gamma=gamma), pool,
                           None if no_cache else ENCODER_CACHE_DIR, settings)

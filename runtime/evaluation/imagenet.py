@@ -224,6 +224,26 @@ def make_episodes(
     return sets, skipped
 
 
+def protocol_episodes(
+    labels_path: Path, data: ImageNetData, *, episodes: int, seed: int, pool: Sequence[str] | None,
+) -> tuple[dict[str, list[str]], list[str] | None, list[EpisodeSet], list[SkippedVerb]]:
+    """The labels read against the benchmark's classes, ``pool`` normalized, and the episodes
+    drawn: ``(labels, pool, sets, skipped verbs)``, or ``LabelsError`` naming the labels file when
+    the labels are malformed, ``pool`` names an unknown class or no episode can be formed. Done
+    before any model loads (``evaluate_robustness`` calls it before its image encoder), so that
+    bad labels fail at once, not after the work with an empty table and exit 0."""
+    labels = load_labels(labels_path, data.classes)
+    if pool is not None:
+        pool = [_norm(c) for c in pool]
+        bad = [c for c in pool if c not in data.class_index]
+        if bad:
+            raise LabelsError(f"pool names classes outside the benchmark: {bad}")
+    sets, skipped = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
+    if not sets:
+        raise LabelsError(no_episode_message(labels_path, skipped, pool))
+    return labels, pool, sets, skipped
+
+
 def no_episode_message(labels_path: Path, skipped: Sequence[SkippedVerb], pool: Sequence[str] | None) -> str:
     """Why no verb of ``labels_path`` forms an episode in either setting, verb by verb."""
     where = f"the {len(pool)} --classes" if pool is not None else "the benchmark's classes"
@@ -308,18 +328,10 @@ def evaluate_imagenet(
     settings = settings or GroundingSettings()
 
     data = load_dataset(data_root)
-    labels = load_labels(labels_path, data.classes)
-    if pool is not None:
-        pool = [_norm(c) for c in pool]
-        bad = [c for c in pool if c not in data.class_index]
-        if bad:
-            raise LabelsError(f"pool names classes outside the benchmark: {bad}")
+    labels, pool, sets, skipped_verbs = protocol_episodes(labels_path, data, episodes=episodes, seed=seed, pool=pool)
     if vocabulary is None:
         vocabulary = list(pool) if pool is not None else [
             _norm(name) for name in read_artifact_names(VOCAB_DIR / "imagenet_objects.txt", "the ImageNet objects vocabulary")]
-    sets, skipped_verbs = make_episodes(labels, data, episodes=episodes, seed=seed, pool=pool)
-    if not sets:  # before any model loads: otherwise an empty table and exit 0 after the work
-        raise LabelsError(no_episode_message(labels_path, skipped_verbs, pool))
 
     runnable, skipped = load_methods(list(methods) if methods is not None else default_methods(kb))
     # every method reads the names of p(o | r) in the vocabulary's senses (methods.build_grounders)

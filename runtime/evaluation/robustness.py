@@ -49,10 +49,10 @@ from ..grounding.settings import GroundingSettings
 from .common import SkippedMethod, vocabulary_senses
 from .imagenet import (
     ImageNetReport,
-    LabelsError,
     embed_dataset_images,
     evaluate_imagenet,
     load_dataset,
+    protocol_episodes,
 )
 from .methods import MethodSpec, default_methods, method_settings
 
@@ -461,17 +461,15 @@ def evaluate_robustness(
     seeds = list(dict.fromkeys(int(x) for x in noise_seeds))
     if not seeds:
         raise ValueError("need at least one noise seed")
+    data = load_dataset(data_root)
+    # the labels and the pool before the encoder loads (it loaded first, then bad labels failed)
+    _, checked_pool, _, _ = protocol_episodes(labels_path, data, episodes=episodes, seed=seed, pool=pool)
     specs = list(methods) if methods is not None else default_methods(kb)
     if encoder is None:
         from ..encoders.conse import ConSEImageEncoder
 
         encoder = ConSEImageEncoder(threads=threads)
-    data = load_dataset(data_root)
-    pool_names = [_norm(c) for c in pool] if pool is not None else list(data.classes)
-    unknown = [c for c in pool_names if c not in data.class_index]
-    if unknown:
-        raise LabelsError(f"pool names classes outside the benchmark: {unknown}")
-    class_ids = sorted(data.class_index[c] for c in pool_names)
+    class_ids = sorted(data.class_index[c] for c in (checked_pool if checked_pool is not None else data.classes))
 
     recogniser = (_recogniser(data, class_ids, specs[0], settings or GroundingSettings(), encoder.text_encoder_id)
                   if specs else None)
@@ -527,13 +525,3 @@ def evaluate_robustness(
               "image_encoder": getattr(encoder, "id", None)}
     return RobustnessReport({k: list(v) for k, v in chosen.items()}, names, metrics, spread, recognition,
                             list(clean.skipped), config, notes)
-
-
-def _norm(name: str) -> str:
-    """Class names as the harness spells them (``imagenet.load_dataset`` normalizes the same way)."""
-    from ...schemas.names import normalize_name
-
-    try:
-        return normalize_name(name)
-    except ValueError:
-        return name.strip().lower()

@@ -192,7 +192,7 @@ def _load_packed(
     if trusted_keys is None:
         raise PackageError(f"{path}: is a packed bundle (.craft), and no trusted keys were given to "
                            "verify its signer; pass the signer's craft-signing.pub with --trusted-key "
-                           "(craftc validate/diff/explain, craft ground/serve) or trusted_keys=[...] "
+                           "(craftc validate/diff/explain/review/diagnose, craft ground/serve) or trusted_keys=[...] "
                            "(Python), or `craft install --trusted-key KEY` it and give the installed "
                            "folder")
     with unpacked(path, trusted_keys) as (folder, _):
