@@ -13,6 +13,8 @@ Run: ``.venv/bin/python benchmarks/vessel_cavities.py``.
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 from craft_e.runtime.sim.assets import object_catalog
@@ -31,6 +33,7 @@ def _floor(points: np.ndarray, centre: np.ndarray, table_z: float) -> float:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()  # --help describes, not runs
     print("| asset | rim (cm) | floor seen by the camera (cm) | floor in physics (cm) | rays low, shipped hulls "
           "| rays low, loaded |\n|---|---:|---:|---:|---:|---:|")
     for asset_id, asset in sorted(object_catalog().items()):

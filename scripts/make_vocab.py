@@ -10,6 +10,7 @@ below), ../shared/data/imagenet_affordance/{verbs.txt,objects.tsv}, the simulati
 
 from __future__ import annotations
 
+import argparse
 import csv
 
 from craft_e.paths import VOCAB_DIR, existing_vocab_dir, shared_dir
@@ -164,6 +165,8 @@ def zhu_objects() -> dict[str, str]:
 
 
 def main() -> None:
+    # no options, but --help must describe, not rewrite the vocabularies (it ran them before)
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     existing_vocab_dir()
     imagenet = shared_dir() / "data/imagenet_affordance"
     sets: dict[str, tuple[list[str], list[str]]] = {
