@@ -10,6 +10,7 @@ import pytest
 from runtime_fixtures import RuntimeKBs, runtime_kbs_fixture  # noqa: F401
 from typer.testing import CliRunner
 
+from craft_e.paths import SIM_DEV_LABELS
 from craft_e.runtime.cli.main import app
 from craft_e.runtime.evaluation.kb_eval import (
     KBLabelsError,
@@ -120,7 +121,7 @@ def test_cli(tmp_path: Path, runtime_kbs: RuntimeKBs) -> None:
 
 @pytest.mark.parametrize("command", [
     ["eval", "kb"],
-    ["eval", "sim", "--labels", "unused.csv", "--max-pairs", "1"],
+    ["eval", "sim", "--labels", str(SIM_DEV_LABELS.resolve()), "--max-pairs", "1"],  # labels are read first
     ["eval", "static", "--max-pairs", "1"],
 ])
 def test_a_named_bundle_that_does_not_load_is_an_error_not_a_skip(tmp_path: Path, command: list[str]) -> None:

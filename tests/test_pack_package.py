@@ -522,6 +522,8 @@ def test_decompression_bomb_is_capped(
 def test_member_and_size_limits(tmp_path: Path, package: Path, keys: tuple[Path, Path]) -> None:
     with pytest.raises(PackageError, match="more than 3 members"):
         unpack_package(package, [keys[1]], tmp_path / "a", limits=Limits(max_members=3))
+    with pytest.raises(PackageError, match="above the limit of 100 per file"):  # was never enforced
+        unpack_package(package, [keys[1]], tmp_path / "b", limits=Limits(max_member_bytes=100))
     with pytest.raises(PackageError, match="limit 10"):
         verify_package(package, [keys[1]], limits=Limits(max_manifest_bytes=10))
     with pytest.raises(PackageError, match="header length"):

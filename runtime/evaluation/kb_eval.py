@@ -62,7 +62,6 @@ CANDIDATES = 5
 METRICS = ("ap", "auc", "top1")
 METRIC_LABELS = {"ap": "AP", "auc": "AUC", "top1": "top-1"}
 DEFAULT_KBS = [KB_DIR / "craft-e-default", KB_DIR / "direct-llm", KB_DIR / "conceptnet"]
-BUILTIN_LABELS = ("zhu", "sim-dev", "sim-val")
 
 
 class KBLabelsError(ValueError):

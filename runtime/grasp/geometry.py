@@ -75,17 +75,6 @@ class CameraIntrinsics:
             axis=-1,
         )
 
-    def metres_per_pixel(self, direction_xy: tuple[float, float], z: float) -> float:
-        """Metric length of one pixel step along an image direction at depth ``z``.
-
-        fx and fy may differ, so the scale depends on the direction of the step.
-        """
-        dx, dy = direction_xy
-        norm = math.hypot(dx, dy)
-        if norm == 0.0:
-            raise ValueError("direction_xy must be non-zero")
-        return z * math.hypot(dx / norm / self.fx, dy / norm / self.fy)
-
 
 @dataclass(frozen=True)
 class Grasp2D:

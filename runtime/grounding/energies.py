@@ -200,11 +200,6 @@ def grasp_energy(scores: npt.NDArray[np.floating] | list[float]) -> float:
     return float(-np.log(np.clip(arr.max(), 1e-6, 1.0)))
 
 
-def align_energy(cosine: float | FloatArray) -> float | FloatArray:
-    """E_align = tanh(-cos(phi_I(r), phi_T(v)))."""
-    return np.tanh(-np.asarray(cosine)) if isinstance(cosine, np.ndarray) else float(np.tanh(-cosine))
-
-
 def weight_matrices_from_graph(
     graph: WeightedGraph, verbs: list[str], properties: list[str], objects: list[str]
 ) -> tuple[FloatArray, FloatArray]:

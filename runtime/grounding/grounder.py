@@ -413,7 +413,6 @@ class Grounder:
         self._eaff = full[:, idx].astype(np.float32, copy=False)  # [V, O] (a copy: fancy indexing)
         self._eaff[:, ~known] = 0.0  # no path to a name the bundle does not know
         self._verb_query = _unit_rows(bundle.embeddings["verb_query"])  # [V, d]
-        self._verb_emb = _unit_rows(bundle.embeddings["verb"])  # [V, d]
         self.dim = int(obj_emb.shape[1])
         self._size_table = size_table(names, bundle.sizes) if self.settings.size_cue is not False else None
         if self.settings.size_cue is True and self._size_table is None:

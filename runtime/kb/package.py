@@ -601,6 +601,10 @@ def _extract(
 ) -> None:
     manifest = verified.manifest
     expected = {name: d for name, d in manifest.files.items()}
+    oversized = sorted(name for name, d in expected.items() if d.bytes > limits.max_member_bytes)
+    if oversized:  # before any byte is read: each member is also capped by what it declares
+        raise _fail(path, f"member {oversized[0]!r} declares {expected[oversized[0]].bytes} bytes, above "
+                    f"the limit of {limits.max_member_bytes} per file", _REPACK)
     allowed = {MANIFEST_FILE, BUILD_INFO_FILE, *expected}
     declared = (
         sum(d.bytes for d in expected.values())

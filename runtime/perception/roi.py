@@ -187,11 +187,6 @@ def box_iou(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> float
     return inter / union if union > 0 else 0.0
 
 
-def mask_iou(a: BoolMask, b: BoolMask) -> float:
-    union = int(np.count_nonzero(a | b))
-    return int(np.count_nonzero(a & b)) / union if union else 0.0
-
-
 def best_box_matches(predicted: Sequence[Region], reference: Sequence[Region]) -> list[float]:
     """For each reference region, the best box IoU any predicted ROI achieves (0 if none)."""
     return [

@@ -225,8 +225,3 @@ def fill_holes(mask: BoolMask) -> BoolMask:
     background, _ = ndimage.label(~mask)  # 4-connected, binary_fill_holes' own structure
     filled: BoolMask = background != background[0, 0]
     return filled
-
-
-def segment_rois(obs: Observation, config: SegmentConfig | None = None) -> list[Region]:
-    """Just the ROIs (see ``segment``)."""
-    return segment(obs, config).rois

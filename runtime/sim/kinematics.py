@@ -91,10 +91,6 @@ class SerialChain:
 
     joints: tuple[ChainJoint, ...]
 
-    @property
-    def movable_names(self) -> list[str]:
-        return [j.name for j in self.joints if j.movable]
-
     @cached_property
     def _rodrigues_parts(self) -> tuple[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]], ...]:
         """Per joint, ``cross_matrices`` of its axis: computed once, not on every call (the grasp

@@ -17,7 +17,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from .records import canonical_json
 
 MANIFEST_SCHEMA_ID = "https://craft-e.dev/schemas/v1/manifest.json"
-REPORT_SCHEMA_ID = "https://craft-e.dev/schemas/v1/report.json"
 
 #: Files whose digests the manifest lists (hashed into ``content_sha256``).
 BUNDLE_FILES: tuple[str, ...] = (

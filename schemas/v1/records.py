@@ -13,8 +13,6 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-RECORD_SCHEMA_ID = "https://craft-e.dev/schemas/v1/record.json"
-
 
 def canonical_json(value: Any) -> str:
     """The one JSON spelling used for hashing: sorted keys, no spaces, UTF-8 kept."""
