@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
+from dev_scenes import METHODS, Episode, Probs, perceive_seed, rank_of, seed_table
 
 from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
@@ -43,34 +43,17 @@ from craft_e.runtime.evaluation.sim_eval import (
     build_grounders,
     default_encoder,
     load_methods,
-    load_sim_labels,
-    make_episode_specs,
     select_methods,
 )
 from craft_e.runtime.grounding.grounder import Grounder
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.perception.roi import ROI
-from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.perceive import grounding_rois, perceive
 from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
-Probs = npt.NDArray[np.float64]
-METHODS = ("CRAFT-E", "direct-LLM")
 #: the extra classifications of each crop: name -> (classifier, mirror TTA)
 EXTRA = {"lite1_mirror": ("efficientnet-lite1", 2), "lite0": ("efficientnet-lite0", 1),
          "lite0_mirror": ("efficientnet-lite0", 2)}
 PRIOR_EXPONENT = 0.5
-
-
-@dataclasses.dataclass
-class Episode:
-    """What one perceived episode leaves for the readings."""
-
-    verb: str
-    rois: list[ROI]
-    target_roi: int | None
-    names: list[str | None]  # each ROI's majority object's name (scoring only)
-    probs: dict[str, Probs]  # classifier reading -> [N, 1000]
 
 
 class RecordingEncoder:
@@ -91,30 +74,18 @@ class RecordingEncoder:
         return probs
 
 
-def perceive_seed(labels: Path, layouts: int, seed: int, cfg: PipelineConfig,
-                  extra: dict[str, ConSEImageEncoder]) -> list[Episode]:
-    """Every episode of one layout seed, perceived once, with each crop's classifications."""
-    specs = make_episode_specs(load_sim_labels(labels), layouts=layouts, seed=seed)
-    recorder = RecordingEncoder(default_encoder(cfg.torch_threads))
-    episodes: list[Episode] = []
-    with SimEnv() as env:
-        for n, spec in enumerate(specs):
-            env.reset(spec.scene)
-            recorder.probs = None
-            perception = perceive(env, recorder, cfg, cavity=True)  # type: ignore[arg-type]
-            rois = grounding_rois(perception)
-            names_by_body = {o.body_id: o.name for o in env.scene.objects}
-            names = [names_by_body.get(r.body) if r.body is not None else None for r in perception.rois]
-            probs: dict[str, Probs] = {}
-            if rois:
-                assert recorder.probs is not None and len(recorder.probs) == len(rois)
-                probs["lite1"] = recorder.probs
-                for key, encoder in extra.items():
-                    probs[key] = np.asarray(encoder.class_probabilities(recorder.crops), dtype=np.float64)
-            episodes.append(Episode(spec.verb, rois, perception.target_roi, names, probs))
-            print(f"\rseed {seed}: {n + 1}/{len(specs)} episodes", end="", flush=True)
-    print()
-    return episodes
+def classified(recorder: RecordingEncoder, extra: dict[str, ConSEImageEncoder]) -> Callable[[list[ROI]], dict[str, Probs]]:
+    """``perceive_seed``'s ``extra``: the probabilities the pipeline's classifier just gave each
+    crop, and each extra classifier's of the same crops."""
+    def record(rois: list[ROI]) -> dict[str, Probs]:
+        assert recorder.probs is not None and len(recorder.probs) == len(rois)
+        probs = {"lite1": recorder.probs}
+        for key, encoder in extra.items():
+            probs[key] = np.asarray(encoder.class_probabilities(recorder.crops), dtype=np.float64)
+        recorder.probs = None  # the next episode's perception sets it again
+        return probs
+
+    return record
 
 
 def _normalized(p: Probs) -> Probs:
@@ -162,7 +133,7 @@ def score(episodes: list[Episode], read: Callable[[dict[str, Probs], int], Probs
         for i, name in enumerate(ep.names):
             if name is None or name not in vocab:
                 continue
-            rank = int((p[i] > p[i, vocab.index(name)]).sum())
+            rank = rank_of(p[i], vocab, name)
             top1 += rank == 0
             top5 += rank < 5
             regions += 1
@@ -194,7 +165,9 @@ def main() -> None:
     assert isinstance(reference, ConSEImageEncoder)
     runnable, _ = load_methods(select_methods(list(METHODS)), reference.text_encoder_id)
     grounders = build_grounders(runnable, GroundingSettings(), sim_vocabulary())
-    perceived = {seed: perceive_seed(args.labels, args.layouts, seed, cfg, extra) for seed in seeds}
+    recorder = RecordingEncoder(default_encoder(cfg.torch_threads))
+    perceived = {seed: perceive_seed(args.labels, args.layouts, seed, cfg, recorder, classified(recorder, extra))
+                 for seed in seeds}
     crops_probs = {seed: np.concatenate([ep.probs["lite1"] for ep in eps if ep.probs]) for seed, eps in perceived.items()}
     priors = {seed: np.concatenate([crops_probs[s] for s in seeds if s != seed]).mean(axis=0) + 1e-6
               for seed in seeds}
@@ -203,18 +176,9 @@ def main() -> None:
     for n, (name, read) in enumerate(readings(priors).items()):
         per_seed = [score(perceived[seed], read, seed, reference, grounders, check=n == 0) for seed in seeds]
         rows.append({"reading": name, "seeds": per_seed})
-    lines = [f"### Readings of the classifier: in-scene recognition and the choice on `{args.labels.name}` "
-             f"(layout seeds {', '.join(map(str, seeds))}; choice only, no pick simulated)\n",
-             "Per seed: in-scene top-1 / top-5 % over the regions of a vocabulary object; CRAFT-E and "
-             "direct-LLM Detect (episodes whose choice is the target's ROI).\n",
-             "| reading | " + " | ".join(f"seed {s}: top-1 / top-5 | CRAFT-E | direct-LLM" for s in seeds) + " |",
-             "|---" + "|---:|---:|---:" * len(seeds) + "|"]
-    for row in rows:
-        cells = [f"{r['top1']:.1f} / {r['top5']:.1f} | {r['detect']['CRAFT-E']}/{r['episodes']} | "
-                 f"{r['detect']['direct-LLM']}/{r['episodes']}" for r in row["seeds"]]
-        lines.append(f"| {row['reading']} | " + " | ".join(cells) + " |")
-    regions = ", ".join(f"seed {r['seed']}: {r['regions']}" for r in rows[0]["seeds"])
-    table = "\n".join(lines) + f"\n\nRegions scored: {regions}.\n"
+    title = (f"### Readings of the classifier: in-scene recognition and the choice on `{args.labels.name}` "
+             f"(layout seeds {', '.join(map(str, seeds))}; choice only, no pick simulated)")
+    table = seed_table(title, rows, seeds)
     print(table)
     if args.markdown is not None:
         args.markdown.write_text(table, encoding="utf-8")

@@ -37,14 +37,13 @@ from __future__ import annotations
 
 import argparse
 import collections
-import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
+from dev_scenes import METHODS, Episode, Probs, perceive_seed, rank_of, seed_table
 
 from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
@@ -52,31 +51,15 @@ from craft_e.runtime.evaluation.sim_eval import (
     build_grounders,
     default_encoder,
     load_methods,
-    load_sim_labels,
-    make_episode_specs,
     select_methods,
 )
 from craft_e.runtime.grounding.grounder import Grounder
 from craft_e.runtime.grounding.settings import GroundingSettings
 from craft_e.runtime.perception.roi import ROI
-from craft_e.runtime.sim.env import SimEnv
-from craft_e.runtime.sim.perceive import grounding_rois, perceive
 from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
-Probs = npt.NDArray[np.float64]
-METHODS = ("CRAFT-E", "direct-LLM")
 CAP_ROUNDS = 20
 CONFUSIONS = 8  # the commonest wrong names reported per seed
-
-
-@dataclasses.dataclass
-class Episode:
-    """What one perceived episode leaves for the readings."""
-
-    verb: str
-    rois: list[ROI]
-    target_roi: int | None
-    names: list[str | None]  # each ROI's majority object's name (scoring only)
 
 
 def column_cap(p: Probs, cap: float) -> Probs:
@@ -115,23 +98,6 @@ READINGS: dict[str, Callable[[Probs], Probs]] = {
 }
 
 
-def perceive_seed(labels: Path, layouts: int, seed: int, cfg: PipelineConfig) -> list[Episode]:
-    """Every episode of one layout seed, perceived once as ``craft eval sim`` does."""
-    specs = make_episode_specs(load_sim_labels(labels), layouts=layouts, seed=seed)
-    encoder = default_encoder(cfg.torch_threads)
-    episodes: list[Episode] = []
-    with SimEnv() as env:
-        for n, spec in enumerate(specs):
-            env.reset(spec.scene)
-            perception = perceive(env, encoder, cfg, cavity=True)
-            names_by_body = {o.body_id: o.name for o in env.scene.objects}
-            names = [names_by_body.get(r.body) if r.body is not None else None for r in perception.rois]
-            episodes.append(Episode(spec.verb, grounding_rois(perception), perception.target_roi, names))
-            print(f"\rseed {seed}: {n + 1}/{len(specs)} episodes", end="", flush=True)
-    print()
-    return episodes
-
-
 def _usable(roi: ROI) -> bool:
     """The ROIs ``Grounder.ground`` ranks (the others it excludes with a reason)."""
     return roi.image_embedding is not None and len(roi.grasp_scores) > 0 and max(roi.grasp_scores) > 0.0
@@ -160,7 +126,7 @@ def score(episodes: list[Episode], read: Callable[[Probs], Probs], grounders: di
             name = ep.names[i]
             if name is None or name not in vocab:
                 continue
-            rank = int((p[k] > p[k, vocab.index(name)]).sum())
+            rank = rank_of(p[k], vocab, name)
             if rank:
                 confusions[(name, vocab[int(np.argmax(p[k]))])] += 1
             top1 += rank == 0
@@ -198,25 +164,15 @@ def main() -> None:
     reference = default_encoder(cfg.torch_threads)
     runnable, _ = load_methods(select_methods(list(METHODS)), reference.text_encoder_id)
     grounders = build_grounders(runnable, GroundingSettings(), sim_vocabulary())
-    perceived = {seed: perceive_seed(args.labels, args.layouts, seed, cfg) for seed in seeds}
+    perceived = {seed: perceive_seed(args.labels, args.layouts, seed, cfg, reference) for seed in seeds}
     rows = [{"reading": name, "seeds": [{"seed": seed, **score(perceived[seed], read, grounders, check=n == 0)}
                                         for seed in seeds]}
             for n, (name, read) in enumerate(READINGS.items())]
-
-    lines = [f"### Scene-level readings of p(o | r): in-scene recognition and the choice on `{args.labels.name}` "
-             f"(layout seeds {', '.join(map(str, seeds))}; choice only, no pick simulated)\n",
-             "Per seed: in-scene top-1 / top-5 % over the regions of a vocabulary object; CRAFT-E and "
-             "direct-LLM Detect (episodes whose choice is the target's ROI).\n",
-             "| reading | " + " | ".join(f"seed {s}: top-1 / top-5 | CRAFT-E | direct-LLM" for s in seeds) + " |",
-             "|---" + "|---:|---:|---:" * len(seeds) + "|"]
-    for row in rows:
-        cells = [f"{r['top1']:.1f} / {r['top5']:.1f} | {r['detect']['CRAFT-E']}/{r['episodes']} | "
-                 f"{r['detect']['direct-LLM']}/{r['episodes']}" for r in row["seeds"]]
-        lines.append(f"| {row['reading']} | " + " | ".join(cells) + " |")
-    regions = ", ".join(f"seed {r['seed']}: {r['regions']}" for r in rows[0]["seeds"])
+    title = (f"### Scene-level readings of p(o | r): in-scene recognition and the choice on `{args.labels.name}` "
+             f"(layout seeds {', '.join(map(str, seeds))}; choice only, no pick simulated)")
     confused = "\n".join(f"- seed {r['seed']}: " + ", ".join(f"{t} → {n} ({c})" for t, n, c in r["confusions"])
                           for r in rows[0]["seeds"])
-    table = ("\n".join(lines) + f"\n\nRegions scored: {regions}.\n\n"
+    table = (seed_table(title, rows, seeds) + "\n"
              f"Commonest wrong names, each region alone (true → named (regions)):\n{confused}\n")
     print(table)
     if args.markdown is not None:

@@ -204,15 +204,18 @@ def bare_robot() -> Iterator[Callable[..., CR3Robot]]:
 def load_script(path: Path) -> ModuleType:
     """Import a script of scripts/ or benchmarks/ (no package, maybe no .py suffix) as a module,
     to call its functions. It is in ``sys.modules`` only while it runs: its dataclasses look
-    their module up while they are built."""
+    their module up while they are built. Its folder is on ``sys.path`` while it loads, as when
+    it runs as a program, so that it can import its neighbours (``benchmarks/dev_scenes.py``)."""
     name = path.name.removesuffix(".py")
     loader = importlib.machinery.SourceFileLoader(name, str(path))
     spec = importlib.util.spec_from_loader(name, loader)
     assert spec is not None
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
+    sys.path.insert(0, str(path.parent))
     try:
         loader.exec_module(module)
     finally:
         sys.modules.pop(name, None)
+        sys.path.remove(str(path.parent))
     return module
