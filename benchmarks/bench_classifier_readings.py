@@ -28,13 +28,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from dev_scenes import METHODS, Episode, Probs, perceive_seed, rank_of, seed_table
+from dev_scenes import METHODS, Episode, Probs, perceive_seed, publish, rank_of, seed_table
 
 from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
@@ -179,15 +178,9 @@ def main() -> None:
     title = (f"### Readings of the classifier: in-scene recognition and the choice on `{args.labels.name}` "
              f"(layout seeds {', '.join(map(str, seeds))}; choice only, no pick simulated)")
     table = seed_table(title, rows, seeds)
-    print(table)
-    if args.markdown is not None:
-        args.markdown.write_text(table, encoding="utf-8")
-    if args.json is not None:
-        args.json.write_text(json.dumps({"benchmark": "readings of the classifier (in-scene recognition, Detect)",
-                                         "labels": args.labels.name, "layouts": args.layouts, "seeds": seeds,
-                                         "encoder": reference.id, "prior_exponent": PRIOR_EXPONENT,
-                                         "rows": rows}, indent=1) + "\n", encoding="utf-8")
-
+    publish(table, {"benchmark": "readings of the classifier (in-scene recognition, Detect)",
+                    "labels": args.labels.name, "layouts": args.layouts, "seeds": seeds, "encoder": reference.id,
+                    "prior_exponent": PRIOR_EXPONENT, "rows": rows}, args.markdown, args.json)
 
 if __name__ == "__main__":
     main()

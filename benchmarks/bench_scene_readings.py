@@ -37,13 +37,12 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from dev_scenes import METHODS, Episode, Probs, perceive_seed, rank_of, seed_table
+from dev_scenes import METHODS, Episode, Probs, perceive_seed, publish, rank_of, seed_table
 
 from craft_e.arguments import output_file, positive_int
 from craft_e.paths import SIM_DEV_LABELS
@@ -174,15 +173,9 @@ def main() -> None:
                           for r in rows[0]["seeds"])
     table = (seed_table(title, rows, seeds) + "\n"
              f"Commonest wrong names, each region alone (true → named (regions)):\n{confused}\n")
-    print(table)
-    if args.markdown is not None:
-        args.markdown.write_text(table, encoding="utf-8")
-    if args.json is not None:
-        args.json.write_text(json.dumps({"benchmark": "scene-level readings of p(o|r) (in-scene recognition, Detect)",
-                                         "labels": args.labels.name, "layouts": args.layouts, "seeds": seeds,
-                                         "encoder": reference.id, "cap_rounds": CAP_ROUNDS, "rows": rows},
-                                        indent=1) + "\n", encoding="utf-8")
-
+    publish(table, {"benchmark": "scene-level readings of p(o|r) (in-scene recognition, Detect)",
+                    "labels": args.labels.name, "layouts": args.layouts, "seeds": seeds, "encoder": reference.id,
+                    "cap_rounds": CAP_ROUNDS, "rows": rows}, args.markdown, args.json)
 
 if __name__ == "__main__":
     main()

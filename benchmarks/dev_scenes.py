@@ -10,6 +10,7 @@ not a program itself.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -77,3 +78,12 @@ def seed_table(title: str, rows: list[dict[str, Any]], seeds: list[int]) -> str:
         lines.append(f"| {row['reading']} | " + " | ".join(cells) + " |")
     regions = ", ".join(f"seed {r['seed']}: {r['regions']}" for r in rows[0]["seeds"])
     return "\n".join(lines) + f"\n\nRegions scored: {regions}.\n"
+
+
+def publish(table: str, payload: dict[str, Any], markdown: Path | None, json_path: Path | None) -> None:
+    """Print the table; write it to ``markdown`` and ``payload`` to ``json_path`` where given."""
+    print(table)
+    if markdown is not None:
+        markdown.write_text(table, encoding="utf-8")
+    if json_path is not None:
+        json_path.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
