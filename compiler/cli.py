@@ -480,6 +480,7 @@ def explain(
 
 @app.command()
 def review(
+    ctx: typer.Context,
     bundle: Annotated[
         Path, typer.Argument(help="Bundle folder, or a signed .craft file (with --trusted-key).")
     ],
@@ -501,7 +502,11 @@ def review(
     except BundleError as exc:
         fail(str(exc))
     paths = kb.paths()
-    if sample > len(paths):  # as --jobs beyond the CPUs: said, then done with what there is
+    # a --sample typed beyond the paths: said (as --jobs beyond the CPUs), then done with what
+    # there is; the default 20 on a small bundle is no request to be told about
+    # (by name: typer's Context is its own vendored click's, whose enum is not click's)
+    source = ctx.get_parameter_source("sample")
+    if source is not None and source.name == "COMMANDLINE" and sample > len(paths):
         note(f"--sample {sample}: the bundle has {len(paths)} verb -> property -> object paths; "
              f"printing all {len(paths)}")
     rng = random.Random(seed)

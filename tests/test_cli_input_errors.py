@@ -299,6 +299,9 @@ def test_review_says_when_the_sample_is_capped(kb_a: Any) -> None:
                                      f"printing all {paths}")
     within = runner.invoke(craftc, ["review", str(kb_a.bundle), "--sample", str(paths)])
     assert within.exit_code == 0 and within.stderr == "", within.output
+    # a default the user did not type (20 on a bundle of fewer paths; here a default of 1000)
+    default = runner.invoke(craftc, ["review", str(kb_a.bundle)], default_map={"review": {"sample": 1000}})
+    assert default.exit_code == 0 and default.stderr == "" and len(default.stdout.splitlines()) == paths
 
 
 @pytest.mark.parametrize(("option", "message"), [
