@@ -34,7 +34,7 @@ from ..runtime.kb.package import (
     statement_for,
     verify_package,
 )
-from ..runtime.kb.verify import BundleError, read_manifest, verify_files
+from ..runtime.kb.verify import BundleError, read_manifest, verify_digests
 from ..schemas.v1.bundle import BUILD_INFO_FILE, MANIFEST_FILE, Manifest
 
 SIGNING_KEY_FILE = "craft-signing.key"
@@ -203,14 +203,15 @@ def seal(
 
 
 def _bundle_members(bundle_dir: Path) -> tuple[list[tuple[str, bytes]], Manifest]:
-    from ..runtime.kb.bundle import load_bundle
+    from ..runtime.kb.bundle import bundle_from_files
     from .bundle_checks import check_derived_files
 
     try:
         manifest = read_manifest(bundle_dir)
-        data = verify_files(bundle_dir, manifest)
-        # what validate checks beyond loading: a signed bundle's E_aff and graph.ttl are its graph's
-        check_derived_files(load_bundle(bundle_dir, check_encoder=False))
+        data = verify_digests(bundle_dir, manifest)
+        # the bytes to sign, read once: checked against each other (as verify_files does), then
+        # what validate checks beyond loading: their E_aff and graph.ttl are their graph's
+        check_derived_files(bundle_from_files(bundle_dir, manifest, data))
     except BundleError as exc:
         raise UnverifiedBundleError(
             f"refusing to pack a bundle that does not verify: {exc}"

@@ -43,7 +43,7 @@ from .verify import (
 
 # Re-exported: callers that load bundles need the verification helpers under one name.
 __all__ = ["MAX_FILE_BYTES", "MAX_MANIFEST_BYTES", "SUPPORTED_SCHEMA_VERSIONS", "Bundle", "BundleError",
-           "PathStep", "check_content", "load_bundle", "parse_graph", "read_manifest", "read_regular_file",
+           "PathStep", "bundle_from_files", "check_content", "load_bundle", "parse_graph", "read_manifest", "read_regular_file",
            "verify_digests", "verify_files"]
 
 FloatArray = npt.NDArray[np.float32]
@@ -152,7 +152,15 @@ def load_bundle(
                 "bundle with the runtime's encoder"
             )
     # the caller's own encoder (``encoder_id``), which it just matched, counts as a known space
-    content = read_content(folder, manifest, data, text_space=want)
+    return bundle_from_files(folder, manifest, data, text_space=want)
+
+
+def bundle_from_files(folder: Path, manifest: Manifest, data: dict[str, bytes], *,
+                      text_space: str | None = None) -> Bundle:
+    """The bundle these verified bytes hold (``verify_digests``'s), parsed once and checked
+    against each other (``content.read_content``). ``craftc pack`` calls it on the very bytes it
+    signs, so that its checks of derived files read those bytes, not a second read of the folder."""
+    content = read_content(folder, manifest, data, text_space=text_space)
     return Bundle(folder, manifest, content.graph, content.energy.astype(np.float32, copy=False),
                   content.embeddings, content.report, content.open_world, content.sizes,
                   content.colours, content.lookalikes)

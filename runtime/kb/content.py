@@ -5,9 +5,9 @@ written by a buggy or hostile tool, or edited and resealed, can hash consistentl
 an edge to a node that does not exist, a weight of 5, E_aff = +7, one object listed twice, a verb
 the runtime is never asked for ("CUT"), a text encoder no image encoder embeds into, or an
 ``open_world.json`` the grounder cannot read: the robot would then refuse it at its first request,
-or rank by garbage without a word. ``verify.verify_files`` (``craftc pack``, ``craft install``,
-unpacking a package) and ``bundle.load_bundle`` (``craftc validate`` and every command that loads
-a bundle) run :func:`read_content`, so such a bundle never verifies, is never signed or
+or rank by garbage without a word. ``verify.verify_files`` (``craft install``, unpacking a
+package), ``bundle.bundle_from_files`` (``craftc pack``) and ``bundle.load_bundle`` (``craftc
+validate`` and every command that loads a bundle) run :func:`read_content`, so such a bundle never verifies, is never signed or
 installed. Each fault is a ``BundleError`` naming the file, the record and the fix.
 
 Loading parses every file anyway; the checks add one pass over the graph's nodes and edges and a

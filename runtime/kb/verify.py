@@ -133,7 +133,8 @@ def verify_files(folder: Path, manifest: Manifest) -> dict[str, bytes]:
     """Every listed file's bytes, checked as ``verify_digests`` does and then against each other
     and the manifest (``content.read_content``: graph, E_aff, embeddings, open-world model, ...).
 
-    ``craftc pack``, ``craft install`` and ``unpack_package`` call this: hashes alone prove only
+    ``craft install`` and ``unpack_package`` call this (``craftc pack`` the same checks, through
+    ``bundle.bundle_from_files`` on the bytes it signs): hashes alone prove only
     that the files are the ones the manifest lists, and a bundle whose graph names a node that
     does not exist or whose E_aff is +7 must be refused before it is signed or installed, not
     when the robot grounds with it.
