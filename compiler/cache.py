@@ -20,7 +20,6 @@ import contextlib
 import hashlib
 import json
 import os
-import tempfile
 from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -29,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from ..files import held_flock
+from ..files import atomic_write_bytes, held_flock
 from ..schemas.v1.records import Record
 
 if TYPE_CHECKING:
@@ -112,21 +111,6 @@ def read_index(path: Path) -> dict[str, str]:
 
 def _index_bytes(entries: dict[str, str]) -> bytes:
     return "".join(f"{d}  {n}\n" for n, d in sorted(entries.items())).encode()
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a same-folder temp file + fsync + rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def record_bytes(record: Record) -> bytes:

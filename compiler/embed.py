@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from ..files import atomic_write_bytes
 from ..runtime.encoders.text import load_text_encoder
-from .cache import EmbeddingIndex, atomic_write_bytes, embedding_digest
+from .cache import EmbeddingIndex, embedding_digest
 
 FloatArray = npt.NDArray[np.float32]
 #: Embeddings added to ``INDEX.tsv`` per rewrite of it.

@@ -4,7 +4,7 @@
 unreadable, not UTF-8 with the byte offset, not JSON with the line; ``read_text_file`` the same
 for any text file); ``sha256_file`` identifies weights, dumps and label files by content (streamed: weights are
 large); ``fsync_dir`` makes a rename durable (the directory entry reaches the disk, not only the
-file); ``current_umask`` reads the process umask so staged folders get the permissions a plain
+file); ``atomic_write_bytes`` writes a file whole or not at all; ``current_umask`` reads the process umask so staged folders get the permissions a plain
 ``mkdir`` would have given them (``mkdtemp`` creates them 0o700); ``held_flock`` holds an
 advisory lock file (the record cache's index and use locks, ``craft install``'s lock);
 ``output_file_problem`` says why a path cannot be written as a file (both CLIs' and the benchmark
@@ -30,6 +30,26 @@ def sha256_file(path: Path) -> str:
         for chunk in iter(lambda: handle.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a same-folder temp file + fsync + rename: a reader (or a
+    crash) sees the old file or the whole new one, never a part. The file gets the permissions
+    a plain ``open(path, "w")`` would give it (``mkstemp`` makes it 0o600)."""
+    import tempfile
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~current_umask())
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def current_umask() -> int:

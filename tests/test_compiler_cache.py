@@ -18,13 +18,13 @@ from craft_e.compiler.cache import (
     INDEX_FILE,
     CacheError,
     RecordCache,
-    atomic_write_bytes,
     read_index,
     record_bytes,
     sha256_hex,
 )
 from craft_e.compiler.llm_knowledge import verb_call
 from craft_e.compiler.sources.llm import LLM_SOURCE, LLMSource, MissingRecordError
+from craft_e.files import atomic_write_bytes
 from craft_e.schemas.v1.records import Record
 
 PAYLOAD = {"verb": "cut", "properties": [{"name": "sharp edge", "weight": 0.9}]}

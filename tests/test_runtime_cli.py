@@ -185,7 +185,7 @@ def test_every_command_is_wired_and_answers_help() -> None:
     """The whole ``craft`` tree, spelled out: a command module that is not wired into ``main``
     (or a group that lost a command) fails here, and each command's options parse."""
     assert parse_box(" 1, 2,3,4 ") == (1.0, 2.0, 3.0, 4.0)
-    expected = {"ground", "install", "rollback", "installed", "serve",
+    expected = {"ground", "perceive", "install", "rollback", "installed", "serve",
                 "eval/imagenet", "eval/sim", "eval/static", "eval/zhu", "eval/kb", "eval/open-world", "eval/recognition",
                 "eval/pickability",
                 "eval/robustness/imagenet", "sim/demo", "sim/collision-meshes"}

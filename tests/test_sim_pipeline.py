@@ -3,6 +3,7 @@ and ``craft sim demo``."""
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterator
 from pathlib import Path
@@ -221,6 +222,13 @@ def test_sim_demo_writes_figure_gif_and_explanation(tmp_path: Path) -> None:
     assert frames.shape[-3:-1] == (240, 320)
     assert "E_total" in result.output and "outcome:" in result.output
     assert (tmp_path / "pour_0.json").is_file()
+    # the camera's frame, as `craft perceive` reads one (tests/test_frame.py grounds such a frame)
+    import numpy as np
+
+    assert np.load(tmp_path / "pour_0_depth.npy").shape == (480, 640)
+    camera = json.loads((tmp_path / "pour_0_camera.json").read_text(encoding="utf-8"))
+    assert (camera["width"], camera["height"]) == (640, 480) and len(camera["cam_to_world"]) == 4
+    assert (tmp_path / "pour_0_rgb.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_colours_are_measured_only_for_a_grounder_that_reads_them(env: SimEnv, encoder: Any) -> None:

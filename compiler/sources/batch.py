@@ -48,8 +48,9 @@ from urllib.parse import urlsplit
 import httpx
 from pydantic import ValidationError
 
+from ...files import atomic_write_bytes
 from ...schemas.v1.records import Record, RecordRequest
-from ..cache import CacheError, atomic_write_bytes, check_payload, extract_json
+from ..cache import CacheError, check_payload, extract_json
 from .http_retry import response_json, send, with_retries
 from .llm import (
     LLM_SOURCE,

@@ -28,6 +28,7 @@ from . import (
     eval_zhu,
     ground,
     install,
+    perceive,
     robustness,
     serve,
     sim,
@@ -43,6 +44,7 @@ app.add_typer(sim_app, name="sim")
 eval_app.add_typer(robustness_app, name="robustness")
 
 app.command("ground")(ground.ground)
+app.command("perceive")(perceive.perceive)
 app.command("install")(install.install_cmd)
 app.command("rollback")(install.rollback_cmd)
 app.command("installed")(install.installed_cmd)

@@ -65,6 +65,7 @@ def demo(
         episode_record,
         make_episode_specs,
     )
+    from ..frame import save_frame
     from ..grounding.grounder import normalize_verb_name
     from ..grounding.settings import GroundingSettings
     from ..grounding.size_cue import CueUnavailableError
@@ -137,8 +138,11 @@ def demo(
     gif = recorder.save(out / f"{stem}.gif")
     record = episode_record(spec, result)
     (out / f"{stem}.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    frame = save_frame(out, stem, result.perception.obs)
     console.print(describe(result, method, gripper=gripper), highlight=False, markup=False, soft_wrap=True)
     err.print(f"wrote {png}, {gif} ({len(recorder.frames)} frames), {out / (stem + '.json')}", highlight=False, markup=False)
+    err.print(f"the camera's frame, for `craft perceive`: {', '.join(str(p) for p in frame)}", highlight=False,
+              markup=False)
 
 
 def _evaluation_episode(

@@ -88,16 +88,19 @@ def _with_poses(obs: Observation, rects: Sequence[Grasp2D]) -> list[GraspCandida
 
 
 def raw_candidates(
-    scene: Scene, obs: Observation, rois: Sequence[Region], bodies: Sequence[int | None],
+    scene: Scene | None, obs: Observation, rois: Sequence[Region], bodies: Sequence[int | None],
     config: PipelineConfig, *, fused: bool = False,
 ) -> list[list[GraspCandidate]]:
     """Grasp candidates of every ROI, best first, with their world poses.
 
     A grasp network runs once over the crop holding all the ROIs and each ROI takes the peaks
     of the shared maps on its mask (``predict_grasps_rois``; ``fused``: its inference rewrite,
-    ``grasp.fused``); the oracle is asked per body.
+    ``grasp.fused``); the oracle is asked per body (of ``scene``, which only the oracle reads:
+    None for a frame without a simulator).
     """
     if config.grasp == "oracle":
+        if scene is None:
+            raise ValueError("the oracle grasp source reads the simulator's scene; a frame alone has none")
         return [[] if body is None else
                  [GraspCandidate(r, pose) for r, pose in _oracle_rect(scene, obs, body, roi.mask)]
                  for roi, body in zip(rois, bodies, strict=True)]

@@ -161,10 +161,29 @@ def perceive_for_pick(
     env: SimEnv, encoder: ImageEncoder, config: PipelineConfig, obs: Observation,
     *, timings: dict[str, float] | None = None, colours: bool = False, cavity: bool = False,
 ) -> list[LazyROI]:
+    """``perceive_frame`` on the testbed's frame: the crops come from the scene camera's colour
+    image ``config.rgb_scale`` times sharper (a render: simulator work, not timed) and heights
+    are measured from the layout's table."""
+    k = config.rgb_scale
+    sharp = env.capture_rgb(k) if k > 1 else obs.rgb
+    return perceive_frame(obs, sharp, env.scene.layout.table_z, encoder, config, timings=timings,
+                          colours=colours, cavity=cavity)
+
+
+def perceive_frame(
+    obs: Observation, sharp: npt.NDArray[np.uint8], table_z: float, encoder: ImageEncoder,
+    config: PipelineConfig, *, timings: dict[str, float] | None = None, colours: bool = False,
+    cavity: bool = False,
+) -> list[LazyROI]:
     """What the robot computes before grounding: ROIs, one grasp-network pass, the crops'
     embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
     points); IK is left to ``ground_lazily``. Predicted ROIs and network grasps only (the
     oracle settings use the simulator's ground truth, which a robot does not have).
+
+    Only the frame is read, never a simulator: ``runtime/frame.py`` runs this on a real camera's
+    frames. ``sharp``: the same view's colour image at an integer multiple of the frame's size
+    (``obs.rgb`` itself at 1x), which the crops come from; ``table_z``: the table's height in
+    the frame's world coordinates.
 
     Both networks run as their inference rewrites (``grasp.fused``, ``encoders.fused``: the
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
@@ -188,19 +207,21 @@ def perceive_for_pick(
     if config.pick.clearance.prefer:
         raise ValueError("the robot's lazy path does not implement the clearance preference yet "
                          "(ClearanceConfig.prefer); use perceive")
+    h, w = obs.shape
+    k = sharp.shape[0] // h
+    if k < 1 or sharp.shape != (k * h, k * w, 3):
+        raise ValueError(f"the sharp colour image is {sharp.shape}; it must be the frame's {h}x{w} "
+                         "times a whole number, with 3 channels")
     single_threaded_blas()
     with timed_stage(timings, "segment"):
         rois = segment(obs, config.segment).rois
-    k = config.rgb_scale
-    sharp = env.capture_rgb(k) if k > 1 else obs.rgb  # a render: simulator work, not timed
     fast_encoder = inference_encoder(encoder)
     with torch_threads(config.torch_threads):
         with timed_stage(timings, "grasp_net"):
-            raw = raw_candidates(env.scene, obs, rois, [None] * len(rois), config, fused=True)
+            raw = raw_candidates(None, obs, rois, [None] * len(rois), config, fused=True)
         with timed_stage(timings, "encode"):
             crops = [crop_box(sharp, tuple(v * k for v in roi.box_xywh)) for roi in rois]
             embeddings, classes = encode_with_classes(fast_encoder, crops)
-    table_z = env.scene.layout.table_z
     out: list[LazyROI] = []
     with timed_stage(timings, "finger_checks"):
         raised = RaisedPoints.of(obs, table_z, config.fingers.height_tolerance)

@@ -1,0 +1,239 @@
+"""``craft perceive``: one RGB-D frame to the object and grasp for a verb, as the robot perceives.
+
+Thin: the files are read and checked here, then ``runtime/frame.py`` runs the testbed robot's
+own perception (segmentation, one grasp-network pass, the crops' embeddings, the size and cavity
+cues, the finger checks) and grounding on the frame. ``craft ground`` is the other way in: the
+caller's own boxes, no depth cues.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from .common import (
+    EnergyFormOpt,
+    checked_output_file,
+    checked_plot_file,
+    fail,
+    grounding_settings,
+    note,
+    out,
+    read_some_names,
+)
+from .episodes import GripperOpt
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from ..frame import FrameGrounding
+    from ..grasp.geometry import CameraIntrinsics
+
+#: what a ``--camera`` file holds (the pose is optional)
+CAMERA_KEYS = ("fx", "fy", "cx", "cy")
+
+
+def read_depth(path: Path, scale: float | None) -> npt.NDArray[np.float32]:
+    """A depth image in metres from ``.npy`` (H x W numbers) or a 16-bit ``.png``; integer depth
+    (a RealSense's raw millimetres) needs ``scale``, metres per unit."""
+    import numpy as np
+
+    if path.is_dir():
+        fail(f"{path}: is a folder; give a depth image (.npy, or a 16-bit .png)")
+    if not path.is_file():
+        fail(f"{path}: depth image not found")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            raw = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            fail(f"{path}: not a .npy array ({exc})")
+    elif suffix == ".png":
+        from PIL import Image, UnidentifiedImageError
+
+        try:
+            with Image.open(path) as img:
+                raw = np.asarray(img)
+        except (OSError, UnidentifiedImageError) as exc:
+            fail(f"{path}: not a readable PNG ({exc})")
+    else:
+        fail(f"{path}: depth must be a .npy array of metres or a 16-bit .png (with --depth-scale)")
+    if raw.ndim != 2 or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+        fail(f"{path}: depth must be an H x W array of numbers, got shape {raw.shape} ({raw.dtype})")
+    if scale is None:
+        if np.issubdtype(raw.dtype, np.integer):
+            fail(f"{path}: depth is in integer units ({raw.dtype}); say how many metres one unit is, "
+                 "e.g. --depth-scale 0.001 for millimetres")
+        scale = 1.0
+    metres: npt.NDArray[np.float32] = (raw.astype(np.float64) * scale).astype(np.float32)
+    return metres
+
+
+def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntrinsics, list[list[float]] | None]:
+    """(the intrinsics, the optional ``cam_to_world``) from a ``--camera`` JSON file, or a
+    RealSense-D435-like model at the image's size when none is given (with a note)."""
+    from ..grasp.geometry import CameraIntrinsics
+
+    if path is None:
+        note(f"no --camera: assuming RealSense-D435-like intrinsics at {width}x{height} (fx = fy = "
+             f"{615.0 * width / 640.0:g}); sizes are only as right as that guess")
+        return CameraIntrinsics.realsense_d435(width, height), None
+    if not path.is_file():
+        fail(f"{path}: camera file not found (JSON: {', '.join(CAMERA_KEYS)}, optional cam_to_world)")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        fail(f"{path}: not a JSON camera file ({exc})")
+    if not isinstance(data, dict):
+        fail(f"{path}: the camera file must be a JSON object with {', '.join(CAMERA_KEYS)}")
+    missing = [k for k in CAMERA_KEYS if k not in data]
+    if missing:
+        fail(f"{path}: the camera file lacks {', '.join(missing)} (pixels, the colour image's pinhole model)")
+    values: dict[str, float] = {}
+    for k in CAMERA_KEYS:
+        v = data[k]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            fail(f"{path}: {k} must be a finite number, got {v!r}")
+        values[k] = float(v)
+    if values["fx"] <= 0 or values["fy"] <= 0:
+        fail(f"{path}: fx and fy must be positive (pixels), got {values['fx']:g}, {values['fy']:g}")
+    for k in ("width", "height"):
+        if k in data and data[k] != (width if k == "width" else height):
+            fail(f"{path}: {k} {data[k]!r} is not the image's {width if k == 'width' else height}")
+    pose = data.get("cam_to_world")
+    if pose is not None and not (isinstance(pose, list) and len(pose) == 4
+                                 and all(isinstance(row, list) and len(row) == 4 for row in pose)
+                                 and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                                         for row in pose for v in row)):
+        fail(f"{path}: cam_to_world must be a 4 x 4 list of finite numbers (camera frame -> world, z up), "
+             "or left out to measure heights from the table plane")
+    intrinsics = CameraIntrinsics(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
+    return intrinsics, pose
+
+
+def grasp_summary(found: FrameGrounding) -> dict[str, Any] | None:
+    """The chosen grasp in pixels and in the frame's world (metres, yaw in degrees), or None."""
+    g = found.grasp
+    if g is None or g.pose is None:
+        return None
+    return {
+        "center_px": [round(g.rect.center_xy[0], 1), round(g.rect.center_xy[1], 1)],
+        "angle_deg": round(math.degrees(g.rect.angle_rad), 1),
+        "width_px": round(g.rect.width_px, 1),
+        "quality": round(g.quality, 4),
+        "position_m": [round(float(v), 4) for v in g.pose.position],
+        "yaw_deg": round(math.degrees(g.pose.yaw), 1),
+        "opening_m": round(g.pose.width_m, 4),
+        "fallback": g.fallback,
+    }
+
+
+def perceive(
+    kb: Annotated[Path, typer.Option(help="Bundle folder (or signed .craft file with --trusted-key).")],
+    verb: Annotated[str, typer.Option(help="The action, e.g. cut.")],
+    rgb: Annotated[Path, typer.Option(help="Colour image (png/jpg), registered to the depth image.")],
+    depth: Annotated[Path, typer.Option(help="Depth image: .npy of metres, or a 16-bit .png with --depth-scale.")],
+    camera: Annotated[Path | None, typer.Option(help="JSON with fx, fy, cx, cy (pixels) and optionally cam_to_world "
+                                                     "(4 x 4, z up); default: a RealSense-D435-like model, "
+                                                     "heights from the table plane.")] = None,
+    depth_scale: Annotated[float | None, typer.Option(help="Metres per depth unit (0.001 for millimetres); "
+                                                           "default: 1 for float depth.")] = None,
+    vocab: Annotated[Path | None, typer.Option(help="The objects the robot may meet, one per line (default: the "
+                                                    "KB's); the size cue needs a typical size for each, e.g. "
+                                                    "artifacts/vocab/sim_objects.txt.")] = None,
+    grasp: Annotated[str, typer.Option(help="Grasp network: grconvnet | ggcnn | ggcnn2.")] = "grconvnet",
+    gripper: GripperOpt = "panda",
+    energy_form: EnergyFormOpt = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the grounding, the regions' measurements "
+                                                                 "and the grasp as JSON.",
+                                                  callback=checked_output_file)] = None,
+    plot: Annotated[Path | None, typer.Option(help="Write a figure (ROIs by energy + reasoning path).",
+                                              callback=checked_plot_file)] = None,
+    trusted_key: Annotated[list[Path] | None, typer.Option("--trusted-key", help="Signer key for a .craft package.")] = None,
+    threads: Annotated[int, typer.Option(min=1, help="Torch threads of the two networks.")] = 1,
+) -> None:
+    """Perceive one RGB-D frame as the robot does and choose the object and grasp for a verb."""
+    from ...schemas.names import MAX_NAME_CHARS, shown
+    from ..encoders.image import load_image
+    from ..frame import FrameError, ground_frame
+    from ..grasp.predict import BACKENDS
+    from ..grounding.grounder import Grounder
+    from ..kb.bundle import BundleError, load_bundle
+    from ..sim.episode import sim_configs
+    from ..sim.pipeline import NETWORK_SOURCES, PipelineConfig
+
+    if depth_scale is not None and not (math.isfinite(depth_scale) and depth_scale > 0):
+        fail(f"--depth-scale {depth_scale:g}: metres per depth unit must be a positive number, e.g. 0.001 for mm")
+    if len(verb) > MAX_NAME_CHARS:
+        fail(f"--verb {shown(verb)} is longer than {MAX_NAME_CHARS} characters")
+    if not verb.strip():
+        fail("--verb is blank; name the action, e.g. --verb cut")
+    if grasp not in NETWORK_SOURCES or grasp not in BACKENDS:
+        fail(f"--grasp {grasp!r}: choose one of {', '.join(s for s in NETWORK_SOURCES if s in BACKENDS)}")
+    vocabulary = read_some_names(vocab, "vocabulary", "--vocab") if vocab is not None else None
+    settings = grounding_settings(energy_form=energy_form, vocabulary=vocabulary)
+    try:
+        _, pick, fingers = sim_configs(gripper, wrist_look=False)
+    except ValueError as exc:
+        fail(str(exc))
+    if rgb.is_dir() or not rgb.is_file():
+        fail(f"{rgb}: {'is a folder; give an image file' if rgb.is_dir() else 'image not found'} (png/jpg)")
+    try:
+        colour = load_image(str(rgb))
+    except OSError as exc:
+        fail(f"{rgb}: not a readable image ({exc})")
+    depth_m = read_depth(depth, depth_scale)
+    if depth_m.shape != colour.shape[:2]:
+        fail(f"{depth}: depth is {depth_m.shape[1]}x{depth_m.shape[0]} pixels, {rgb} is "
+             f"{colour.shape[1]}x{colour.shape[0]}: give both from one registered frame")
+    intrinsics, pose = read_camera(camera, colour.shape[1], colour.shape[0])
+    try:
+        bundle = load_bundle(kb, trusted_keys=[str(k) for k in trusted_key] if trusted_key else None)
+    except BundleError as exc:
+        fail(str(exc))
+    from ..evaluation.sim_eval import default_encoder
+
+    encoder = default_encoder(threads)
+    if encoder.text_encoder_id != bundle.manifest.text_encoder.id:
+        fail(f"{kb}: the bundle's text encoder is {bundle.manifest.text_encoder.id}, the image encoder embeds "
+             f"into {encoder.text_encoder_id}; use a matching bundle")
+    try:
+        grounder = Grounder(bundle, settings)
+        config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick, fingers=fingers)  # type: ignore[arg-type]
+        found = ground_frame(grounder, encoder, config, verb, colour, depth_m, intrinsics, pose)
+    except (FrameError, ValueError) as exc:  # UnknownVerbError and a cue's refusal included
+        fail(str(exc))
+    result = found.grounding
+    result.notes.append("no robot model here: the grasp is checked against the open hand, not planned "
+                        "(no IK, no approach clearance); the testbed's `craft sim demo` does both")
+    if found.pose_from_table:
+        result.notes.append("no camera pose: heights are measured from the table plane fitted in this frame")
+    if not grounder.size_cue_active:
+        result.notes.append("the size cue is off: some vocabulary objects have no typical size in the bundle "
+                            "(--vocab with names that all have one turns it on)")
+    out.print(result.render(), highlight=False, markup=False, soft_wrap=True)
+    summary = grasp_summary(found)
+    if summary is not None:
+        out.print(f"grasp: centre ({summary['center_px'][0]:g}, {summary['center_px'][1]:g}) px, opening "
+                  f"{100 * summary['opening_m']:.1f} cm, yaw {summary['yaw_deg']:g} deg, at "
+                  f"({', '.join(f'{v:.3f}' for v in summary['position_m'])}) m"
+                  f"{' (the antipodal fallback)' if summary['fallback'] else ''}",
+                  highlight=False, markup=False, soft_wrap=True)
+    if json_out is not None:
+        data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": encoder.id, **result.to_dict(),
+                "grasp": summary, "regions": len(found.rois), "table_z_m": round(found.table_z, 5),
+                "cam_to_world": [[round(float(v), 6) for v in row] for row in found.cam_to_world],
+                "pose_from_table": found.pose_from_table}
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+        note(f"wrote {json_out}")
+    if plot is not None:
+        from ..grounding.plotting import plot_grounding
+
+        plot_grounding(colour, result, plot)
+        note(f"wrote {plot}")

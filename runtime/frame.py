@@ -1,0 +1,170 @@
+"""One RGB-D frame from a real camera to the object and grasp for a verb, and why.
+
+The testbed's robot perceives with ``sim.choose.perceive_frame``: class-agnostic segmentation
+on the table plane, one grasp-network pass, one batched ConSE pass over the crops, the depth
+cues (each region's extents for the size cue, its open cavity for the cavity cue) and the
+finger check of its grasps. That function reads the frame alone, so a real robot's frame runs
+the same code here, with nothing of the simulator: no render, no ground truth, no robot model.
+
+What a frame alone cannot give is left out and said so: there is no arm to plan, so no IK check
+of the pick (``ground_lazily`` is told every grasp is reachable), and no relocation of a blocked
+approach (it plans the arm's path, ``sim/relocate.py``). The grasp returned is the chosen
+region's best grasp the open hand fits around, top-down along the table's normal.
+
+Heights need the table. With the camera's pose (``cam_to_world``, z up) the table is the
+height of the fitted plane in that frame; without it, the frame is made from the plane itself
+(``table_pose``): z along its normal, towards the camera, the table at z = 0. Extents,
+cavities and the finger checks measure heights above the table and lengths along it, so either
+way they are the same to the plane fit's error.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from ..files import atomic_write_bytes
+from .encoders.image import ImageEncoder
+from .grasp.geometry import CameraIntrinsics
+from .grounding.grounder import Grounder, Grounding
+from .perception.observation import Observation
+from .perception.plane import Plane
+from .perception.segment import SegmentConfig, table_plane
+from .sim.candidates import GraspCandidate
+from .sim.choose import LazyROI, ground_lazily, perceive_frame
+from .sim.pipeline import PipelineConfig
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class FrameError(ValueError):
+    """A frame that cannot be perceived (shapes, no depth, no table); the message says which."""
+
+
+@dataclass(frozen=True)
+class FrameGrounding:
+    """What ``ground_frame`` found: the grounding, the chosen grasp, the regions as perceived,
+    and the world frame used (``pose_from_table``: made from the table plane, not given)."""
+
+    grounding: Grounding
+    grasp: GraspCandidate | None
+    rois: list[LazyROI]
+    cam_to_world: FloatArray
+    table_z: float
+    pose_from_table: bool
+
+
+def pose_from_plane(plane: Plane) -> FloatArray:
+    """``cam_to_world`` [4, 4] of a world frame on ``plane`` (camera frame, oriented so the camera
+    has positive distance): z along its normal towards the camera, the origin under the camera,
+    x the camera's x axis laid on the plane. The plane is z = 0 in it."""
+    z = np.asarray(plane.normal, dtype=np.float64)
+    origin = -plane.offset * z  # the plane's point nearest the camera's centre
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    if np.linalg.norm(x) < 1e-6:  # the camera's x axis along the normal: use its y axis
+        x = np.array([0.0, 1.0, 0.0]) - z[1] * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    rotation = np.stack([x, y, z])  # rows: the world axes in camera coordinates
+    out = np.eye(4)
+    out[:3, :3] = rotation
+    out[:3, 3] = -rotation @ origin
+    return out
+
+
+def table_pose(rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.float32], intrinsics: CameraIntrinsics,
+               config: SegmentConfig | None = None) -> FloatArray:
+    """``cam_to_world`` with the frame's table plane at z = 0 (``pose_from_plane`` of the same
+    RANSAC plane segmentation fits)."""
+    return pose_from_plane(_table(Observation(rgb, depth, intrinsics, np.eye(4)), config or SegmentConfig()))
+
+
+def _table(obs: Observation, config: SegmentConfig) -> Plane:
+    """The frame's table plane (``segment.table_plane``), or a ``FrameError`` saying why none."""
+    try:
+        return table_plane(obs, config)
+    except ValueError as exc:
+        raise FrameError(f"no table plane in the depth image ({exc})") from exc
+
+
+def frame_observation(
+    rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
+    cam_to_world: npt.ArrayLike | None = None, config: SegmentConfig | None = None,
+) -> tuple[Observation, float, bool]:
+    """(the frame, the table's height in its world frame, whether that frame was made from the
+    table plane). Depth is metres along the optical axis; 0, NaN and negative values are no
+    reading. With ``cam_to_world`` the table's height is the mean world height of the plane's
+    inliers."""
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise FrameError(f"the colour image must be H x W x 3, got {rgb.shape}")
+    if depth.shape != rgb.shape[:2]:
+        raise FrameError(f"depth is {depth.shape[0]}x{depth.shape[1]} pixels, the colour image "
+                         f"{rgb.shape[0]}x{rgb.shape[1]}: give both from one registered frame")
+    if (intrinsics.width, intrinsics.height) != (rgb.shape[1], rgb.shape[0]):
+        raise FrameError(f"the camera model is {intrinsics.width}x{intrinsics.height}, the image "
+                         f"{rgb.shape[1]}x{rgb.shape[0]}")
+    metres = np.asarray(depth, dtype=np.float32)
+    metres = np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0)).astype(np.float32)
+    if not np.any(metres > 0):
+        raise FrameError("the depth image has no valid reading (every pixel is 0, NaN or negative)")
+    colour = np.ascontiguousarray(rgb, dtype=np.uint8)
+    if cam_to_world is None:
+        pose = table_pose(colour, metres, intrinsics, config)
+        return Observation(colour, metres, intrinsics, pose), 0.0, True
+    pose = np.asarray(cam_to_world, dtype=np.float64)
+    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+        raise FrameError(f"cam_to_world must be a finite 4 x 4 matrix, got shape {pose.shape}")
+    obs = Observation(colour, metres, intrinsics, pose)
+    cfg = config or SegmentConfig()
+    plane = _table(obs, cfg)
+    on_table = np.abs(plane.distance(obs.points_camera())) <= cfg.plane.inlier_threshold
+    heights = obs.world_z()[on_table]
+    if heights.size == 0:
+        raise FrameError("no pixel lies on the table plane")
+    return obs, float(np.mean(heights)), False
+
+
+def ground_frame(
+    grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig, verb: str,
+    rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
+    cam_to_world: npt.ArrayLike | None = None,
+) -> FrameGrounding:
+    """Perceive one frame as the testbed's robot does (``perceive_frame``) and ground ``verb``
+    over its regions; the grasp is the chosen region's first that the fingers fit around (no IK:
+    see the module docstring). Crops come from ``rgb`` itself (the testbed's are from a sharper
+    render: ``PipelineConfig.rgb_scale``)."""
+    if config.grasp == "oracle" or config.rois == "oracle":
+        raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend")
+    cfg = replace(config, rgb_scale=1, ik_filter=False)
+    obs, table_z, from_table = frame_observation(rgb, depth, intrinsics, cam_to_world, cfg.segment)
+    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=grounder.colour_cue_active,
+                          cavity=grounder.cavity_cue_active)
+    choice = ground_lazily(grounder, verb, rois, lambda _grasp: True)
+    grasp = choice.grasp if isinstance(choice.grasp, GraspCandidate) else None
+    return FrameGrounding(choice.grounding, grasp, rois, obs.cam_to_world, table_z, from_table)
+
+
+def save_frame(folder: Path, stem: str, obs: Observation) -> tuple[Path, Path, Path]:
+    """Write ``obs`` as ``craft perceive`` reads a camera's frame: ``<stem>_rgb.png``,
+    ``<stem>_depth.npy`` (metres, float32) and ``<stem>_camera.json`` (the pinhole model and
+    ``cam_to_world``), each whole or not at all. The simulator's body ids are not written: a
+    camera has none."""
+    from PIL import Image
+
+    png = io.BytesIO()
+    Image.fromarray(obs.rgb).save(png, format="PNG")
+    npy = io.BytesIO()
+    np.save(npy, np.asarray(obs.depth, dtype=np.float32), allow_pickle=False)
+    k = obs.intrinsics
+    camera = {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
+              "cam_to_world": [[float(v) for v in row] for row in obs.cam_to_world]}
+    paths = (folder / f"{stem}_rgb.png", folder / f"{stem}_depth.npy", folder / f"{stem}_camera.json")
+    for path, data in zip(paths, (png.getvalue(), npy.getvalue(), (json.dumps(camera, indent=1) + "\n").encode()),
+                          strict=True):
+        atomic_write_bytes(path, data)
+    return paths

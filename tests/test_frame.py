@@ -1,0 +1,229 @@
+"""A real camera's frame through the robot's own perception (``runtime/frame.py``, ``craft perceive``).
+
+Why: the testbed's robot perceives with ``sim.choose.perceive_frame``, which reads the frame
+alone; a robot with a RealSense must get the same regions, cues and choice from its own frame,
+with no simulator behind it. Checked on testbed frames saved as files (``save_frame``), with the
+camera's pose given and with heights measured from the table plane instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import stat
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from craft_e.paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR
+from craft_e.runtime.cli.main import app
+from craft_e.runtime.frame import FrameError, frame_observation, pose_from_plane, save_frame
+from craft_e.runtime.grasp.geometry import CameraIntrinsics
+from craft_e.runtime.perception.observation import Observation
+from craft_e.runtime.perception.plane import Plane
+
+runner = CliRunner()
+SIM_VOCAB = VOCAB_DIR / "sim_objects.txt"
+
+
+def flat(text: str) -> str:
+    return " ".join(text.replace("│", " ").split())
+
+
+def test_the_pose_from_a_plane_puts_the_plane_at_zero_height_below_the_camera() -> None:
+    normal = np.array([0.1, -0.8, -0.5])
+    normal /= np.linalg.norm(normal)
+    plane = Plane(normal, 0.7).facing(np.zeros(3))
+    pose = pose_from_plane(plane)
+    rotation = pose[:3, :3]
+    np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(rotation) == pytest.approx(1.0)
+    rng = np.random.default_rng(0)
+    # points of the plane: any point less its distance along the normal
+    points = rng.normal(size=(50, 3))
+    points -= np.outer(plane.distance(points), plane.normal)
+    world = points @ pose[:3, :3].T + pose[:3, 3]
+    np.testing.assert_allclose(world[:, 2], 0.0, atol=1e-12)
+    camera = pose[:3, 3]  # the camera's centre in the world
+    assert camera[2] == pytest.approx(0.7)  # its distance from the plane, above it
+    np.testing.assert_allclose(camera[:2], 0.0, atol=1e-12)  # the origin lies under the camera
+
+
+@pytest.fixture(scope="module")
+def testbed_frames() -> Iterator[list[tuple[str, Observation, list[Any]]]]:
+    """Three sim-dev scenes: (verb, the camera's frame, the robot path's choice at 1x with every
+    grasp reachable: ``perceive_for_pick`` + ``ground_lazily``, what ``ground_frame`` must equal)."""
+    from craft_e.runtime.evaluation.sim_eval import (
+        default_encoder,
+        load_sim_labels,
+        make_episode_specs,
+    )
+    from craft_e.runtime.grounding.grounder import Grounder
+    from craft_e.runtime.grounding.settings import GroundingSettings
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.sim.choose import ground_lazily, perceive_for_pick
+    from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
+
+    encoder = default_encoder(1)
+    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings(vocabulary=sim_vocabulary()))
+    config = PipelineConfig(rgb_scale=1, ik_filter=False)
+    specs = make_episode_specs(load_sim_labels(SIM_DEV_LABELS), layouts=1, max_pairs=3)
+    frames = []
+    for spec in specs:
+        with SimEnv() as env:
+            env.reset(spec.scene)
+            env.robot.reset_home()
+            obs = env.capture()
+            lazy = perceive_for_pick(env, encoder, config, obs, cavity=grounder.cavity_cue_active)
+            choice = ground_lazily(grounder, spec.verb, lazy, lambda _grasp: True)
+            frames.append((spec.verb, dataclasses.replace(obs, seg=None), [choice, lazy]))
+    yield frames
+
+
+def test_a_testbed_frame_is_perceived_and_grounded_as_the_robot_does(
+    testbed_frames: list[tuple[str, Observation, list[Any]]],
+) -> None:
+    """``ground_frame`` equals the testbed robot's path (no IK either way) in every scene: the same
+    regions, extents and cavities, the same choice and grasp, whether the camera's pose is given
+    or the frame is made from the table plane (heights agree to the plane fit's error)."""
+    from craft_e.runtime.evaluation.sim_eval import default_encoder
+    from craft_e.runtime.frame import ground_frame
+    from craft_e.runtime.grounding.grounder import Grounder
+    from craft_e.runtime.grounding.settings import GroundingSettings
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
+
+    encoder = default_encoder(1)
+    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings(vocabulary=sim_vocabulary()))
+    for verb, obs, (reference, lazy) in testbed_frames:
+        for pose in (obs.cam_to_world, None):
+            found = ground_frame(grounder, encoder, PipelineConfig(), verb, obs.rgb, obs.depth, obs.intrinsics, pose)
+            assert found.pose_from_table == (pose is None)
+            assert [r.box_xywh for r in found.rois] == [r.box_xywh for r in lazy]
+            for mine, theirs in zip(found.rois, lazy, strict=True):
+                assert (mine.extents_m is None) == (theirs.extents_m is None)
+                if mine.extents_m is not None and theirs.extents_m is not None:
+                    np.testing.assert_allclose(mine.extents_m, theirs.extents_m, atol=2e-3)
+                assert mine.cavity_m == pytest.approx(theirs.cavity_m, abs=2e-3)
+            assert found.grounding.chosen is not None and reference.grounding.chosen is not None
+            assert found.grounding.chosen.index == reference.grounding.chosen.index
+            assert found.grasp is not None and found.grasp.rect == reference.grasp.rect
+
+
+def test_craft_perceive_reads_a_saved_frame_and_writes_the_choice(
+    testbed_frames: list[tuple[str, Observation, list[Any]]], tmp_path: Path,
+) -> None:
+    verb, obs, (reference, _) = testbed_frames[0]
+    old = os.umask(0o022)
+    try:
+        rgb, depth, camera = save_frame(tmp_path, "scene", obs)
+    finally:
+        os.umask(old)
+    assert {stat.S_IMODE(p.stat().st_mode) for p in (rgb, depth, camera)} == {0o644}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene_camera.json", "scene_depth.npy", "scene_rgb.png"]
+    out = tmp_path / "out" / "choice.json"
+    result = runner.invoke(app, ["perceive", "--kb", str(KB_DIR / "craft-e-default"), "--verb", verb,
+                                 "--rgb", str(rgb), "--depth", str(depth), "--camera", str(camera),
+                                 "--vocab", str(SIM_VOCAB), "--json", str(out)], env={"COLUMNS": "300"})
+    assert result.exit_code == 0, result.output
+    text = flat(result.output)
+    assert "size cue, cavity cue" in text and "grasp: centre" in text and "no IK" in text
+    data = json.loads(out.read_text(encoding="utf-8"))
+    assert data["chosen"] == reference.grounding.chosen.index
+    assert data["size_cue_used"] and data["pose_from_table"] is False
+    assert data["grasp"]["center_px"] == [round(v, 1) for v in reference.grasp.rect.center_xy]
+    assert 0 < data["grasp"]["opening_m"] <= 0.08
+    np.testing.assert_allclose(data["cam_to_world"], obs.cam_to_world, atol=1e-6)
+
+
+def _bad(args: list[str]) -> str:
+    result = runner.invoke(app, ["perceive", *args], env={"COLUMNS": "300"})
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    return flat(result.output)
+
+
+@pytest.fixture()
+def small_frame(tmp_path: Path) -> tuple[Path, Path]:
+    from PIL import Image
+
+    rgb = tmp_path / "rgb.png"
+    Image.fromarray(np.zeros((48, 64, 3), np.uint8)).save(rgb)
+    depth = tmp_path / "depth.npy"
+    np.save(depth, np.full((48, 64), 0.7, np.float32))
+    return rgb, depth
+
+
+def test_craft_perceive_names_each_bad_input_before_loading_anything(
+    small_frame: tuple[Path, Path], tmp_path: Path,
+) -> None:
+    rgb, depth = small_frame
+    kb = tmp_path / "no-kb"  # never read: every refusal below comes first
+    out = tmp_path / "o.json"
+    base = ["--kb", str(kb), "--verb", "cut", "--rgb", str(rgb), "--json", str(out)]
+    millimetres = tmp_path / "mm.npy"
+    np.save(millimetres, np.full((48, 64), 700, np.uint16))
+    assert "depth is in integer units (uint16)" in _bad([*base, "--depth", str(millimetres)])
+    assert "--depth-scale 0.001 for millimetres" in _bad([*base, "--depth", str(millimetres)])
+    assert "--depth-scale -1: metres per depth unit must be a positive number" in _bad(
+        [*base, "--depth", str(millimetres), "--depth-scale", "-1"])
+    small = tmp_path / "small.npy"
+    np.save(small, np.full((24, 32), 0.7, np.float32))
+    assert "depth is 32x24 pixels" in _bad([*base, "--depth", str(small)])
+    assert "depth image not found" in _bad([*base, "--depth", str(tmp_path / "none.npy")])
+    text = tmp_path / "depth.txt"
+    text.write_text("0.7\n", encoding="utf-8")
+    assert "depth must be a .npy array of metres or a 16-bit .png" in _bad([*base, "--depth", str(text)])
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"fx": 600, "fy": 600, "cx": 32}), encoding="utf-8")
+    assert "the camera file lacks cy" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])
+    camera.write_text(json.dumps({"fx": 600, "fy": 0, "cx": 32, "cy": 24}), encoding="utf-8")
+    assert "fx and fy must be positive" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])
+    camera.write_text(json.dumps({"fx": 600, "fy": 600, "cx": 32, "cy": 24, "cam_to_world": [[1, 0, 0]]}),
+                      encoding="utf-8")
+    assert "cam_to_world must be a 4 x 4 list" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])
+    camera.write_text(json.dumps({"fx": 600, "fy": 600, "cx": 32, "cy": 24, "width": 640}), encoding="utf-8")
+    assert "width 640 is not the image's 64" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])
+    assert "--grasp 'antipodal': choose one of grconvnet, ggcnn, ggcnn2" in _bad(
+        [*base, "--depth", str(depth), "--grasp", "antipodal"])
+    assert not out.exists()
+
+
+def test_a_frame_without_depth_or_with_mismatched_shapes_is_refused() -> None:
+    k = CameraIntrinsics.realsense_d435(64, 48)
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    with pytest.raises(FrameError, match="no valid reading"):
+        frame_observation(rgb, np.zeros((48, 64), np.float32), k)
+    with pytest.raises(FrameError, match="no valid reading"):
+        frame_observation(rgb, np.full((48, 64), np.nan, np.float32), k)
+    with pytest.raises(FrameError, match="one registered frame"):
+        frame_observation(rgb, np.ones((24, 32), np.float32), k)
+    with pytest.raises(FrameError, match="camera model is 640x480"):
+        frame_observation(rgb, np.ones((48, 64), np.float32), CameraIntrinsics.realsense_d435())
+    with pytest.raises(FrameError, match="finite 4 x 4"):
+        frame_observation(rgb, np.ones((48, 64), np.float32), k, np.eye(3))
+
+
+def test_a_flat_frame_is_a_table_with_nothing_on_it(tmp_path: Path) -> None:
+    """A real camera looking at an empty table: the plane is found and no region is chosen; the
+    command says so and exits 0 (nothing to pick is an answer, not an error)."""
+    from craft_e.runtime.evaluation.sim_eval import default_encoder
+    from craft_e.runtime.frame import ground_frame
+    from craft_e.runtime.grounding.grounder import Grounder
+    from craft_e.runtime.grounding.settings import GroundingSettings
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.sim.pipeline import PipelineConfig
+
+    k = CameraIntrinsics.realsense_d435(64, 48)
+    rgb = np.full((48, 64, 3), 120, np.uint8)
+    depth = np.full((48, 64), 0.7, np.float32)
+    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings())
+    found = ground_frame(grounder, default_encoder(1), PipelineConfig(), "cut", rgb, depth, k)
+    assert found.rois == [] and found.grounding.chosen is None and found.grasp is None
+    assert found.pose_from_table and found.cam_to_world[2, 3] == pytest.approx(0.7)
