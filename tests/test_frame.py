@@ -227,3 +227,38 @@ def test_a_flat_frame_is_a_table_with_nothing_on_it(tmp_path: Path) -> None:
     found = ground_frame(grounder, default_encoder(1), PipelineConfig(), "cut", rgb, depth, k)
     assert found.rois == [] and found.grounding.chosen is None and found.grasp is None
     assert found.pose_from_table and found.cam_to_world[2, 3] == pytest.approx(0.7)
+
+
+def test_the_figure_names_the_object_its_paths_explain(
+    testbed_frames: list[tuple[str, Observation, list[Any]]],
+) -> None:
+    """The reasoning panel drew the top hypothesis's name at the end of paths that belong to a
+    lower one (the demo's knife: "marker" at the end of "has a sharp cutting edge -(1.00)->"), while
+    the terminal said "why 'knife' (hypothesis 3; no path for 'marker')". It names the paths' object."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from craft_e.runtime.grounding.grounder import ObjectHypothesis
+    from craft_e.runtime.grounding.plotting import _draw_path
+
+    _, _, (reference, _) = testbed_frames[0]
+    grounding = reference.grounding
+    chosen = grounding.chosen
+    assert chosen is not None and chosen.paths
+    explained = chosen.paths[0].obj
+    probability = next(h.probability for h in chosen.hypotheses if h.name == explained)
+    # the same grounding with an unexplained name on top (a name the KB has no path for)
+    unexplained = dataclasses.replace(chosen, hypotheses=[ObjectHypothesis("zzz gadget", 0.5), *chosen.hypotheses])
+    for ranked, top in ((chosen, chosen.hypotheses[0].name), (unexplained, "zzz gadget")):
+        figure, ax = plt.subplots()
+        try:
+            _draw_path(ax, dataclasses.replace(grounding, ranked=[ranked, *grounding.ranked[1:]]), 5)
+            labels = [t.get_text() for t in ax.texts]
+            title = ax.get_title()
+        finally:
+            plt.close(figure)
+        assert explained in labels and "zzz gadget" not in labels
+        assert f"({explained}, p={probability:.2f}" in title
+        assert ("which has no path" in title) == (top != explained)

@@ -87,9 +87,15 @@ def _draw_path(ax: Any, grounding: Grounding, max_paths: int) -> None:
     if best is None:
         ax.text(0.5, 0.5, "no ROI could be chosen", ha="center")
         return
-    obj = best.hypotheses[0].name if best.hypotheses else "?"
+    top = best.hypotheses[0].name if best.hypotheses else "?"
+    # the paths end at the most likely hypothesis that has one (``Grounding.render`` says the same):
+    # the object box names that one, not the top hypothesis, so the drawn weights are its own
+    obj = best.paths[0].obj if best.paths else top
+    rank = next((i for i, h in enumerate(best.hypotheses) if h.name == obj), 0)
+    p_obj = best.hypotheses[rank].probability if best.hypotheses else 0.0
+    who = f"{obj}, p={p_obj:.2f}" + ("" if obj == top else f"; most likely {top}, which has no path")
     paths = sorted(best.paths, key=lambda p: -(p.w_vp + p.w_po))[:max_paths]
-    ax.set_title(f"why ROI {best.index} ({obj}, p={best.hypotheses[0].probability:.2f}): "
+    ax.set_title(f"why ROI {best.index} ({who}): "
                  f"E_aff={best.e_aff:.2f} E_align={best.e_align:.2f} E_grasp={best.e_grasp:.2f}", fontsize=9)
     box = {"boxstyle": "round", "facecolor": "#eef", "edgecolor": "#88a"}
     verb_label = grounding.verb + (" (open vocab)" if grounding.open_vocab_used else "")
