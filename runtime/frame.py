@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -32,6 +33,8 @@ from ..files import atomic_write_bytes
 from .encoders.image import ImageEncoder
 from .grasp.geometry import CameraIntrinsics
 from .grounding.grounder import Grounder, Grounding
+from .grounding.settings import GroundingSettings
+from .kb.bundle import Bundle
 from .perception.observation import Observation
 from .perception.plane import Plane
 from .perception.segment import SegmentConfig, table_plane
@@ -168,3 +171,38 @@ def save_frame(folder: Path, stem: str, obs: Observation) -> tuple[Path, Path, P
                           strict=True):
         atomic_write_bytes(path, data)
     return paths
+
+
+class FramePerceiver:
+    """What a robot's process builds once and calls per frame: the bundle's grounder over the
+    objects it may meet, the image encoder, the grasp network and the hand's finger geometry.
+
+    ``vocabulary``: the objects (default: the KB's; the size cue needs a typical size for every
+    one, as the testbed's 62 names have); ``gripper``: ``panda`` (the Franka hand) or
+    ``robotiq_2f85``; ``grasp``: ``grconvnet``, ``ggcnn`` or ``ggcnn2``. Bad choices raise
+    ``ValueError`` naming them; a vocabulary the bundle cannot read raises the grounder's error.
+    """
+
+    def __init__(self, bundle: Bundle, *, vocabulary: Sequence[str] | None = None, gripper: str = "panda",
+                 grasp: str = "grconvnet", threads: int = 1, settings: GroundingSettings | None = None) -> None:
+        from .evaluation.sim_eval import default_encoder
+        from .sim.episode import sim_configs
+        from .sim.pipeline import NETWORK_SOURCES
+
+        if grasp not in NETWORK_SOURCES:
+            raise ValueError(f"grasp network {grasp!r}: choose one of {', '.join(NETWORK_SOURCES)}")
+        _, pick, fingers = sim_configs(gripper, wrist_look=False)
+        base = settings or GroundingSettings()
+        if vocabulary is not None:
+            base = base.model_copy(update={"vocabulary": tuple(vocabulary)})
+        self.grounder = Grounder(bundle, base)
+        self.encoder = default_encoder(threads)
+        if self.encoder.text_encoder_id != bundle.manifest.text_encoder.id:
+            raise ValueError(f"the bundle's text encoder is {bundle.manifest.text_encoder.id}, the image "
+                             f"encoder embeds into {self.encoder.text_encoder_id}; use a matching bundle")
+        self.config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick, fingers=fingers)  # type: ignore[arg-type]
+
+    def ground(self, verb: str, rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating],
+               intrinsics: CameraIntrinsics, cam_to_world: npt.ArrayLike | None = None) -> FrameGrounding:
+        """``ground_frame`` of one frame (depth in metres, 0 = no reading)."""
+        return ground_frame(self.grounder, self.encoder, self.config, verb, rgb, depth, intrinsics, cam_to_world)

@@ -262,3 +262,27 @@ def test_the_figure_names_the_object_its_paths_explain(
         assert explained in labels and "zzz gadget" not in labels
         assert f"({explained}, p={probability:.2f}" in title
         assert ("which has no path" in title) == (top != explained)
+
+
+def test_a_frame_perceiver_is_built_once_and_grounds_each_frame(
+    testbed_frames: list[tuple[str, Observation, list[Any]]],
+) -> None:
+    """The robot's-process API (``FramePerceiver``): the same choice as the robot path, and bad
+    choices named before any model loads."""
+    from craft_e.runtime.frame import FramePerceiver
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.sim.pipeline import sim_vocabulary
+
+    bundle = load_bundle(KB_DIR / "craft-e-default")
+    with pytest.raises(ValueError, match="grasp network 'antipodal'"):
+        FramePerceiver(bundle, grasp="antipodal")
+    with pytest.raises(ValueError, match="robotiq"):
+        FramePerceiver(bundle, gripper="claw")
+    perceiver = FramePerceiver(bundle, vocabulary=sim_vocabulary())
+    assert perceiver.grounder.size_cue_active and perceiver.grounder.cavity_cue_active
+    for verb, obs, (reference, _) in testbed_frames:
+        found = perceiver.ground(verb, obs.rgb, obs.depth, obs.intrinsics)
+        assert found.grounding.chosen is not None
+        assert found.grounding.chosen.index == reference.grounding.chosen.index
+    wide = FramePerceiver(bundle, vocabulary=sim_vocabulary(), gripper="robotiq_2f85")
+    assert wide.config.fingers.half_opening > perceiver.config.fingers.half_opening

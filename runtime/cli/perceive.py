@@ -160,12 +160,10 @@ def perceive(
     """Perceive one RGB-D frame as the robot does and choose the object and grasp for a verb."""
     from ...schemas.names import MAX_NAME_CHARS, shown
     from ..encoders.image import load_image
-    from ..frame import FrameError, ground_frame
+    from ..frame import FrameError, FramePerceiver
     from ..grasp.predict import BACKENDS
-    from ..grounding.grounder import Grounder
     from ..kb.bundle import BundleError, load_bundle
-    from ..sim.episode import sim_configs
-    from ..sim.pipeline import NETWORK_SOURCES, PipelineConfig
+    from ..sim.pipeline import NETWORK_SOURCES
 
     if depth_scale is not None and not (math.isfinite(depth_scale) and depth_scale > 0):
         fail(f"--depth-scale {depth_scale:g}: metres per depth unit must be a positive number, e.g. 0.001 for mm")
@@ -177,8 +175,10 @@ def perceive(
         fail(f"--grasp {grasp!r}: choose one of {', '.join(s for s in NETWORK_SOURCES if s in BACKENDS)}")
     vocabulary = read_some_names(vocab, "vocabulary", "--vocab") if vocab is not None else None
     settings = grounding_settings(energy_form=energy_form, vocabulary=vocabulary)
+    from ..sim.episode import sim_configs
+
     try:
-        _, pick, fingers = sim_configs(gripper, wrist_look=False)
+        sim_configs(gripper, wrist_look=False)  # an unknown hand is named before anything loads
     except ValueError as exc:
         fail(str(exc))
     if rgb.is_dir() or not rgb.is_file():
@@ -196,18 +196,12 @@ def perceive(
         bundle = load_bundle(kb, trusted_keys=[str(k) for k in trusted_key] if trusted_key else None)
     except BundleError as exc:
         fail(str(exc))
-    from ..evaluation.sim_eval import default_encoder
-
-    encoder = default_encoder(threads)
-    if encoder.text_encoder_id != bundle.manifest.text_encoder.id:
-        fail(f"{kb}: the bundle's text encoder is {bundle.manifest.text_encoder.id}, the image encoder embeds "
-             f"into {encoder.text_encoder_id}; use a matching bundle")
     try:
-        grounder = Grounder(bundle, settings)
-        config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick, fingers=fingers)  # type: ignore[arg-type]
-        found = ground_frame(grounder, encoder, config, verb, colour, depth_m, intrinsics, pose)
+        perceiver = FramePerceiver(bundle, gripper=gripper, grasp=grasp, threads=threads, settings=settings)
+        found = perceiver.ground(verb, colour, depth_m, intrinsics, pose)
     except (FrameError, ValueError) as exc:  # UnknownVerbError and a cue's refusal included
         fail(str(exc))
+    grounder = perceiver.grounder
     result = found.grounding
     result.notes.append("no robot model here: the grasp is checked against the open hand, not planned "
                         "(no IK, no approach clearance); the testbed's `craft sim demo` does both")
@@ -225,7 +219,7 @@ def perceive(
                   f"{' (the antipodal fallback)' if summary['fallback'] else ''}",
                   highlight=False, markup=False, soft_wrap=True)
     if json_out is not None:
-        data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": encoder.id, **result.to_dict(),
+        data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": perceiver.encoder.id, **result.to_dict(),
                 "grasp": summary, "regions": len(found.rois), "table_z_m": round(found.table_z, 5),
                 "cam_to_world": [[round(float(v), 6) for v in row] for row in found.cam_to_world],
                 "pose_from_table": found.pose_from_table}
