@@ -7,9 +7,12 @@ finger check of its grasps. That function reads the frame alone, so a real robot
 the same code here, with nothing of the simulator: no render, no ground truth, no robot model.
 
 What a frame alone cannot give is left out and said so: there is no arm to plan, so no IK check
-of the pick (``ground_lazily`` is told every grasp is reachable), and no relocation of a blocked
-approach (it plans the arm's path, ``sim/relocate.py``). The grasp returned is the chosen
-region's best grasp the open hand fits around, top-down along the table's normal.
+of the pick (``ground_lazily`` is told every grasp is reachable) and no check of the arm's links
+against what the camera sees. The hand is checked: when the frame's depth shows that the open
+hand would come down on a neighbour at the chosen grasp, the grasp is moved along its object
+to a clear spot by the testbed's own search (``sim/relocate.py``, with the hand's boxes alone
+and no leaned hand, which exists to swing the arm's wrist aside). The grasp returned is top-down
+along the table's normal.
 
 Heights need the table. With the camera's pose (``cam_to_world``, z up) the table is the
 height of the fitted plane in that frame; without it, the frame is made from the plane itself
@@ -22,7 +25,7 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -31,7 +34,7 @@ import numpy.typing as npt
 
 from ..files import atomic_write_bytes
 from .encoders.image import ImageEncoder
-from .grasp.geometry import CameraIntrinsics
+from .grasp.geometry import CameraIntrinsics, TopDownGrasp
 from .grounding.grounder import Grounder, Grounding
 from .grounding.settings import GroundingSettings
 from .kb.bundle import Bundle
@@ -39,8 +42,13 @@ from .perception.observation import Observation
 from .perception.plane import Plane
 from .perception.segment import SegmentConfig, table_plane
 from .sim.candidates import GraspCandidate
-from .sim.choose import LazyROI, ground_lazily, perceive_frame
-from .sim.pipeline import PipelineConfig
+from .sim.choose import LazyROI, ground_lazily, perceive_frame, relocate_lazily
+from .sim.clearance import HandBox, HeightMap, hand_hits
+from .sim.episode import PickConfig
+from .sim.hands import FINGERTIP_BELOW_TCP, hand_spec
+from .sim.pipeline import PipelineConfig, relocate_search
+from .sim.relocate import RelocateConfig
+from .sim.surface import RaisedPoints
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -60,6 +68,9 @@ class FrameGrounding:
     cam_to_world: FloatArray
     table_z: float
     pose_from_table: bool
+    #: "" when the chosen grasp's hand is clear of the other objects (or unchecked), else what it
+    #: would touch and where the grasp moved, or that it was kept (``relocate.relocate_if_blocked``)
+    relocation: str = ""
 
 
 def pose_from_plane(plane: Plane) -> FloatArray:
@@ -132,15 +143,38 @@ def frame_observation(
     return obs, float(np.mean(heights)), False
 
 
+def hand_problems(
+    table_z: float, pick: PickConfig, boxes: Sequence[HandBox],
+) -> Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]]:
+    """The pick check of a frame without a robot model, in ``relocate_if_blocked``'s form
+    (unreachable, blocked): would the open hand, at the grasp's depth (the testbed's
+    ``episode._approach``: the insertion depth, never below the table clearance), touch what the
+    depth frame shows of the other objects? The hand comes straight down, so its boxes are
+    lowest at the grasp; a leaned hand needs the arm's model and counts as unreachable."""
+    lowest = table_z + FINGERTIP_BELOW_TCP + pick.table_clearance
+
+    def check(pose: TopDownGrasp, heights: HeightMap) -> tuple[str | None, str | None]:
+        if pose.lean != 0.0:
+            return "a leaned hand needs the arm's model", None
+        tcp = np.array([float(pose.position[0]), float(pose.position[1]),
+                        max(float(pose.position[2]) - pick.insertion_depth, lowest)])
+        why = hand_hits(tcp, float(pose.yaw), boxes, heights, pick.clearance)
+        return None, None if why is None else f"approach blocked: {why}"
+
+    return check
+
+
 def ground_frame(
     grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig, verb: str,
     rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
-    cam_to_world: npt.ArrayLike | None = None,
+    cam_to_world: npt.ArrayLike | None = None, hand_boxes: Sequence[HandBox] = (),
 ) -> FrameGrounding:
     """Perceive one frame as the testbed's robot does (``perceive_frame``) and ground ``verb``
     over its regions; the grasp is the chosen region's first that the fingers fit around (no IK:
-    see the module docstring). Crops come from ``rgb`` itself (the testbed's are from a sharper
-    render: ``PipelineConfig.rgb_scale``)."""
+    see the module docstring), moved to a clear spot of its object when ``hand_boxes`` (the
+    hand's, ``sim.hands.HandSpec.clearance_boxes``; empty: unchecked) would touch another object
+    there and ``config.pick.clearance.relocate`` is on. Crops come from ``rgb`` itself (the
+    testbed's are from a sharper render: ``PipelineConfig.rgb_scale``)."""
     if config.grasp == "oracle" or config.rois == "oracle":
         raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend")
     cfg = replace(config, rgb_scale=1, ik_filter=False)
@@ -149,7 +183,19 @@ def ground_frame(
                           cavity=grounder.cavity_cue_active)
     choice = ground_lazily(grounder, verb, rois, lambda _grasp: True)
     grasp = choice.grasp if isinstance(choice.grasp, GraspCandidate) else None
-    return FrameGrounding(choice.grounding, grasp, rois, obs.cam_to_world, table_z, from_table)
+    why = ""
+    chosen = choice.grounding.chosen
+    if grasp is not None and chosen is not None and hand_boxes:
+        check = hand_problems(table_z, cfg.pick, hand_boxes)
+
+        def search(mask: npt.NDArray[np.bool_], raised: RaisedPoints, material: FloatArray,
+                   picked: GraspCandidate, others: Iterator[TopDownGrasp]) -> tuple[GraspCandidate, str]:
+            return relocate_search(obs, mask, raised, material, picked, others, cfg, table_z, check, check,
+                                   RelocateConfig(leans_deg=()))
+
+        moved, why = relocate_lazily(cfg, obs, table_z, rois[chosen.index], grasp, search)
+        grasp = moved if isinstance(moved, GraspCandidate) else grasp
+    return FrameGrounding(choice.grounding, grasp, rois, obs.cam_to_world, table_z, from_table, why)
 
 
 def save_frame(folder: Path, stem: str, obs: Observation) -> tuple[Path, Path, Path]:
@@ -192,6 +238,7 @@ class FramePerceiver:
         if grasp not in NETWORK_SOURCES:
             raise ValueError(f"grasp network {grasp!r}: choose one of {', '.join(NETWORK_SOURCES)}")
         _, pick, fingers = sim_configs(gripper, wrist_look=False)
+        self.hand_boxes = hand_spec(gripper).clearance_boxes
         base = settings or GroundingSettings()
         if vocabulary is not None:
             base = base.model_copy(update={"vocabulary": tuple(vocabulary)})
@@ -204,5 +251,6 @@ class FramePerceiver:
 
     def ground(self, verb: str, rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating],
                intrinsics: CameraIntrinsics, cam_to_world: npt.ArrayLike | None = None) -> FrameGrounding:
-        """``ground_frame`` of one frame (depth in metres, 0 = no reading)."""
-        return ground_frame(self.grounder, self.encoder, self.config, verb, rgb, depth, intrinsics, cam_to_world)
+        """``ground_frame`` of one frame (depth in metres, 0 = no reading), the hand's approach checked."""
+        return ground_frame(self.grounder, self.encoder, self.config, verb, rgb, depth, intrinsics, cam_to_world,
+                            self.hand_boxes)

@@ -286,3 +286,69 @@ def test_a_frame_perceiver_is_built_once_and_grounds_each_frame(
         assert found.grounding.chosen.index == reference.grounding.chosen.index
     wide = FramePerceiver(bundle, vocabulary=sim_vocabulary(), gripper="robotiq_2f85")
     assert wide.config.fingers.half_opening > perceiver.config.fingers.half_opening
+
+
+def test_the_hand_check_sees_a_neighbour_beside_the_grasp() -> None:
+    """``hand_problems``: the Franka hand's body is 21 cm along its closing axis; a 10 cm block
+    8 cm from the grasp along that axis is under it, the same block across the axis is not, and
+    a leaned hand needs the arm's model."""
+    from craft_e.runtime.frame import hand_problems
+    from craft_e.runtime.grasp.geometry import TopDownGrasp
+    from craft_e.runtime.sim.clearance import HeightMap
+    from craft_e.runtime.sim.episode import PickConfig
+    from craft_e.runtime.sim.hands import hand_spec
+
+    xs, ys = np.meshgrid(np.linspace(-0.02, 0.02, 9), np.linspace(-0.02, 0.02, 9))
+    block = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.10)], axis=1)
+    check = hand_problems(0.0, PickConfig(), hand_spec("panda").clearance_boxes)
+    grasp = TopDownGrasp(np.array([0.0, 0.0, 0.02]), 0.0, 0.04)  # closing along world x
+    along = HeightMap(block + np.array([0.08, 0.0, 0.0]), 0.005, 0.0)
+    across = HeightMap(block + np.array([0.0, 0.08, 0.0]), 0.005, 0.0)
+    unreachable, blocked = check(grasp, along)
+    assert unreachable is None and blocked is not None and "the hand would touch" in blocked
+    assert check(grasp, across) == (None, None)
+    assert check(grasp._replace(lean=0.3), across)[0] == "a leaned hand needs the arm's model"
+
+
+def test_a_frame_moves_a_blocked_grasp_as_the_testbed_robot_does() -> None:
+    """sim-dev ``eat/peach/1``: at the chosen grasp a finger would come down on a neighbour. The
+    frame's hand check finds the same contact as the testbed robot's whole-pick check and moves
+    the grasp to the same spot (the testbed's also plans the arm, which this frame cannot)."""
+    from craft_e.runtime.evaluation.sim_eval import (
+        default_encoder,
+        load_sim_labels,
+        make_episode_specs,
+    )
+    from craft_e.runtime.frame import FramePerceiver
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.sim.candidates import GraspCandidate
+    from craft_e.runtime.sim.choose import (
+        ground_lazily,
+        perceive_for_pick,
+        pick_reachable,
+        relocate_choice,
+    )
+    from craft_e.runtime.sim.env import SimEnv
+    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
+
+    labels = load_sim_labels(SIM_DEV_LABELS)
+    pairs = tuple(p for p in labels.pairs if (p.verb, p.object) == ("eat", "peach"))
+    spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
+                if s.id == "eat/peach/1")
+    perceiver = FramePerceiver(load_bundle(KB_DIR / "craft-e-default"), vocabulary=sim_vocabulary())
+    config = PipelineConfig(rgb_scale=1)
+    with SimEnv() as env:
+        env.reset(spec.scene)
+        env.robot.reset_home()
+        obs = env.capture()
+        lazy = perceive_for_pick(env, default_encoder(1), config, obs, cavity=True)
+        made: dict[Any, Any] = {}
+        choice = ground_lazily(perceiver.grounder, "eat", lazy, pick_reachable(env, config, lazy, made))
+        assert choice.grounding.chosen is not None
+        moved, why = relocate_choice(env, config, obs, lazy[choice.grounding.chosen.index], choice.grasp, made)
+    found = perceiver.ground("eat", obs.rgb, obs.depth, obs.intrinsics, obs.cam_to_world)
+    assert found.grounding.chosen is not None and found.grounding.chosen.index == choice.grounding.chosen.index
+    assert why.startswith("approach blocked: a finger would touch") and found.relocation == why
+    assert isinstance(moved, GraspCandidate) and found.grasp is not None and found.grasp.pose is not None
+    np.testing.assert_allclose(found.grasp.pose.position, moved.pose.position, atol=1e-9)
+    assert found.grasp.pose.yaw == pytest.approx(moved.pose.yaw)

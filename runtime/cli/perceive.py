@@ -203,8 +203,9 @@ def perceive(
         fail(str(exc))
     grounder = perceiver.grounder
     result = found.grounding
-    result.notes.append("no robot model here: the grasp is checked against the open hand, not planned "
-                        "(no IK, no approach clearance); the testbed's `craft sim demo` does both")
+    result.notes.append("no robot model here: the grasp is checked against the open hand and the hand's "
+                        "approach against the depth frame, but the arm is not planned (no IK, no check of its "
+                        "links); the testbed's `craft sim demo` does both")
     if found.pose_from_table:
         result.notes.append("no camera pose: heights are measured from the table plane fitted in this frame")
     if not grounder.size_cue_active:
@@ -212,6 +213,8 @@ def perceive(
                             "(--vocab with names that all have one turns it on)")
     out.print(result.render(), highlight=False, markup=False, soft_wrap=True)
     summary = grasp_summary(found)
+    if found.relocation:
+        out.print(f"before the pick: {found.relocation}", highlight=False, markup=False, soft_wrap=True)
     if summary is not None:
         out.print(f"grasp: centre ({summary['center_px'][0]:g}, {summary['center_px'][1]:g}) px, opening "
                   f"{100 * summary['opening_m']:.1f} cm, yaw {summary['yaw_deg']:g} deg, at "
@@ -220,7 +223,7 @@ def perceive(
                   highlight=False, markup=False, soft_wrap=True)
     if json_out is not None:
         data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": perceiver.encoder.id, **result.to_dict(),
-                "grasp": summary, "regions": len(found.rois), "table_z_m": round(found.table_z, 5),
+                "grasp": summary, "relocation": found.relocation, "regions": len(found.rois), "table_z_m": round(found.table_z, 5),
                 "cam_to_world": [[round(float(v), 6) for v in row] for row in found.cam_to_world],
                 "pose_from_table": found.pose_from_table}
         json_out.parent.mkdir(parents=True, exist_ok=True)

@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from ..grasp.geometry import TopDownGrasp
     from ..perception.observation import Observation
     from ..perception.roi import Region
+    from .candidates import GraspCandidate
     from .env import SimEnv
     from .episode import PlanCache
     from .pipeline import PipelineConfig
@@ -271,8 +272,25 @@ def relocate_choice(
     ``with_refinements`` list ``perceive`` checks, so both paths move a grasp to the same spot.
     Costs one clearance check of the chosen pick when its approach is clear (and no IK plan,
     given the ``plans`` ``pick_reachable`` made)."""
-    from .candidates import GraspCandidate, fallback_with_refinements, with_refinements
     from .pipeline import relocate_candidate
+
+    def search(mask: npt.NDArray[np.bool_], raised: RaisedPoints, material: npt.NDArray[np.float64],
+               chosen: GraspCandidate, others: Iterator[TopDownGrasp]) -> tuple[GraspCandidate, str]:
+        return relocate_candidate(env, obs, mask, raised, material, chosen, others, config, plans)
+
+    return relocate_lazily(config, obs, env.scene.layout.table_z, roi, grasp, search)
+
+
+def relocate_lazily(
+    config: PipelineConfig, obs: Observation, table_z: float, roi: LazyROI, grasp: object,
+    search: Callable[[npt.NDArray[np.bool_], RaisedPoints, npt.NDArray[np.float64], GraspCandidate,
+                      Iterator[TopDownGrasp]], tuple[GraspCandidate, str]],
+) -> tuple[object, str]:
+    """``relocate_choice`` with the search given (``search(mask, raised, material, grasp,
+    others)``, ``pipeline.relocate_search`` bound to a pick check): the testbed's plans the arm,
+    a frame without a robot model checks the hand alone (``runtime/frame.py``). The region's
+    other grasps are listed only when the search asks for them."""
+    from .candidates import GraspCandidate, fallback_with_refinements, with_refinements
 
     assert isinstance(grasp, GraspCandidate) and grasp.pose is not None
     if not config.pick.clearance.relocate or roi.mask is None or roi.material is None or roi.raised is None:
@@ -285,10 +303,9 @@ def relocate_choice(
 
     def others() -> Iterator[TopDownGrasp]:  # only when the chosen grasp's own spots are all blocked
         assert roi.material is not None
-        table_z = env.scene.layout.table_z
         listed = with_refinements(list(roi.raw), roi.material, obs, table_z, config)
         if grasp.fallback and roi.region is not None:  # the evaluation listed the fallback's grasps too
             listed += fallback_with_refinements(obs, roi.region, roi.material, table_z, config)
         yield from (c.pose for c in listed if c.pose is not None and not is_chosen(c.pose))
 
-    return relocate_candidate(env, obs, roi.mask, roi.raised, roi.material, grasp, others(), config, plans)
+    return search(roi.mask, roi.raised, roi.material, grasp, others())

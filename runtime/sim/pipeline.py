@@ -76,13 +76,14 @@ from .active_look import ActiveLookConfig
 from .assets import object_catalog
 from .candidates import GraspCandidate, tip_height
 from .choice_errors import ChoiceError, choice_error, true_class_grounding
-from .clearance import heights_excluding
+from .clearance import HeightMap, heights_excluding
 from .env import SimEnv
 from .episode import Outcome, PickConfig, PickResult, PlanCache, execute_pick, pick_problems
 from .fallback import FallbackConfig
 from .fingers import FingerGeometry
 from .perceive import PerceivedROI, ScenePerception, frame_look, grounding_rois, perceive
 from .refine import RefineConfig
+from .relocate import RelocateConfig, relocate_if_blocked
 from .retry import Attempt, RetryConfig, hand_empty, return_home, same_grasp
 from .scene import SceneSpec
 from .surface import RaisedPoints, object_centre
@@ -379,16 +380,27 @@ def relocate_candidate(
     the region's own depth points (``material``) against the height map of everything outside
     its ``mask``, and the moved grasp as a candidate with the network grasp's quality.
     ``raised``: the frame's raised points (the caller has them: made once per frame)."""
-    from .relocate import RelocateConfig, relocate_if_blocked
-
-    assert grasp.pose is not None
-    table_z = env.scene.layout.table_z
-    heights = heights_excluding(raised, mask, table_z, config.pick.clearance)
-    result = relocate_if_blocked(
-        grasp.pose, others, material, heights,
+    return relocate_search(
+        obs, mask, raised, material, grasp, others, config, env.scene.layout.table_z,
         lambda g, h: pick_problems(env, g, config.pick, h, plans),
-        lambda g: tip_height(g, config.pick, table_z), config.fingers, RelocateConfig(),
-        lambda g, h: pick_problems(env, g, config.pick, h, plans, approach_first=True))
+        lambda g, h: pick_problems(env, g, config.pick, h, plans, approach_first=True), RelocateConfig())
+
+
+def relocate_search(
+    obs: Observation, mask: BoolMask, raised: RaisedPoints, material: FloatArray, grasp: GraspCandidate,
+    others: Iterable[TopDownGrasp], config: PipelineConfig, table_z: float,
+    problems: Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]],
+    spot_problems: Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]],
+    relocate: RelocateConfig,
+) -> tuple[GraspCandidate, str]:
+    """``relocate_candidate`` with the pick's check given (``problems``, ``spot_problems``, as
+    ``relocate.relocate_if_blocked`` takes them): the testbed's plans the arm's IK, a frame without a
+    robot model checks the hand alone (``runtime/frame.py``)."""
+    assert grasp.pose is not None
+    heights = heights_excluding(raised, mask, table_z, config.pick.clearance)
+    result = relocate_if_blocked(grasp.pose, others, material, heights, problems,
+                                 lambda g: tip_height(g, config.pick, table_z), config.fingers, relocate,
+                                 spot_problems)
     if not result.moved:
         return grasp, result.detail
     try:
