@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import io
 import json
+import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -71,6 +73,68 @@ class FrameGrounding:
     #: "" when the chosen grasp's hand is clear of the other objects (or unchecked), else what it
     #: would touch and where the grasp moved, or that it was kept (``relocate.relocate_if_blocked``)
     relocation: str = ""
+
+    def grasp_dict(self) -> dict[str, Any] | None:
+        """The chosen grasp in pixels and in the frame's world (metres, yaw in degrees), for JSON;
+        None without one."""
+        g = self.grasp
+        if g is None or g.pose is None:
+            return None
+        return {
+            "center_px": [round(g.rect.center_xy[0], 1), round(g.rect.center_xy[1], 1)],
+            "angle_deg": round(math.degrees(g.rect.angle_rad), 1),
+            "width_px": round(g.rect.width_px, 1),
+            "quality": round(g.quality, 4),
+            "position_m": [round(float(v), 4) for v in g.pose.position],
+            "yaw_deg": round(math.degrees(g.pose.yaw), 1),
+            "opening_m": round(g.pose.width_m, 4),
+            "fallback": g.fallback,
+        }
+
+    def frame_dict(self) -> dict[str, Any]:
+        """What the frame's perception adds to the grounding's JSON: the grasp, its relocation,
+        the regions found and the world frame used."""
+        return {"grasp": self.grasp_dict(), "relocation": self.relocation, "regions": len(self.rois),
+                "table_z_m": round(self.table_z, 5),
+                "cam_to_world": [[round(float(v), 6) for v in row] for row in self.cam_to_world],
+                "pose_from_table": self.pose_from_table}
+
+
+NPY_MAGIC = b"\x93NUMPY"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def decode_depth(data: bytes, scale: float | None = None) -> npt.NDArray[np.float32]:
+    """A depth image in metres from a ``.npy`` file's bytes (H x W numbers) or a PNG's (16-bit, as
+    a RealSense's raw millimetres are saved); integer depth needs ``scale``, metres per unit.
+    ``FrameError`` says what is wrong: another format, another shape, no scale."""
+    if data.startswith(NPY_MAGIC):
+        try:
+            raw = np.load(io.BytesIO(data), allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise FrameError(f"not a readable .npy array ({exc})") from None
+    elif data.startswith(PNG_MAGIC):
+        from PIL import Image, UnidentifiedImageError
+
+        try:
+            with Image.open(io.BytesIO(data)) as img:
+                raw = np.asarray(img)
+        except (OSError, UnidentifiedImageError, Image.DecompressionBombError) as exc:
+            raise FrameError(f"not a readable PNG ({exc})") from None
+    else:
+        raise FrameError("depth must be a .npy array of metres or a 16-bit PNG (with a depth scale)")
+    if raw.ndim != 2 or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+        raise FrameError(f"depth must be an H x W array of numbers, got shape {raw.shape} ({raw.dtype})")
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise FrameError(f"a depth scale of {scale:g}: metres per depth unit must be a positive number, "
+                         "e.g. 0.001 for millimetres")
+    if scale is None:
+        if np.issubdtype(raw.dtype, np.integer):
+            raise FrameError(f"depth is in integer units ({raw.dtype}); say how many metres one unit is, "
+                             "e.g. a depth scale of 0.001 for millimetres")
+        scale = 1.0
+    metres: npt.NDArray[np.float32] = (raw.astype(np.float64) * scale).astype(np.float32)
+    return metres
 
 
 def pose_from_plane(plane: Plane) -> FloatArray:
@@ -164,23 +228,43 @@ def hand_problems(
     return check
 
 
-def ground_frame(
-    grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig, verb: str,
-    rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
-    cam_to_world: npt.ArrayLike | None = None, hand_boxes: Sequence[HandBox] = (),
-) -> FrameGrounding:
-    """Perceive one frame as the testbed's robot does (``perceive_frame``) and ground ``verb``
-    over its regions; the grasp is the chosen region's first that the fingers fit around (no IK:
-    see the module docstring), moved to a clear spot of its object when ``hand_boxes`` (the
-    hand's, ``sim.hands.HandSpec.clearance_boxes``; empty: unchecked) would touch another object
-    there and ``config.pick.clearance.relocate`` is on. Crops come from ``rgb`` itself (the
-    testbed's are from a sharper render: ``PipelineConfig.rgb_scale``)."""
+@dataclass(frozen=True)
+class PerceivedFrame:
+    """One frame perceived (``perceive``), ready to ground any verb (``choose``): the frame in
+    its world coordinates, the table's height there, whether that frame was made from the table
+    plane, the regions, and the configuration they were perceived with."""
+
+    obs: Observation
+    table_z: float
+    pose_from_table: bool
+    rois: list[LazyROI]
+    config: PipelineConfig
+
+
+def perceive(
+    encoder: ImageEncoder, config: PipelineConfig, rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating],
+    intrinsics: CameraIntrinsics, cam_to_world: npt.ArrayLike | None = None, *, colours: bool = False,
+    cavity: bool = False,
+) -> PerceivedFrame:
+    """The torch side of ``ground_frame``: the frame's regions with their grasps (checked as
+    grounding asks), embeddings and depth cues (``colours``, ``cavity``: measure them, for a
+    grounder that reads them). A server runs this in a worker thread and ``choose`` on its event
+    loop, where its grounders live."""
     if config.grasp == "oracle" or config.rois == "oracle":
         raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend")
     cfg = replace(config, rgb_scale=1, ik_filter=False)
     obs, table_z, from_table = frame_observation(rgb, depth, intrinsics, cam_to_world, cfg.segment)
-    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=grounder.colour_cue_active,
-                          cavity=grounder.cavity_cue_active)
+    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=colours, cavity=cavity)
+    return PerceivedFrame(obs, table_z, from_table, rois, cfg)
+
+
+def choose(grounder: Grounder, frame: PerceivedFrame, verb: str, hand_boxes: Sequence[HandBox] = ()) -> FrameGrounding:
+    """Ground ``verb`` over a perceived frame's regions; the grasp is the chosen region's first
+    that the fingers fit around (no IK: see the module docstring), moved to a clear spot of its
+    object when ``hand_boxes`` (the hand's, ``sim.hands.HandSpec.clearance_boxes``; empty:
+    unchecked) would touch another object there and the configuration's
+    ``pick.clearance.relocate`` is on. Raises the grounder's errors (an unknown verb)."""
+    obs, table_z, cfg, rois = frame.obs, frame.table_z, frame.config, frame.rois
     choice = ground_lazily(grounder, verb, rois, lambda _grasp: True)
     grasp = choice.grasp if isinstance(choice.grasp, GraspCandidate) else None
     why = ""
@@ -195,7 +279,20 @@ def ground_frame(
 
         moved, why = relocate_lazily(cfg, obs, table_z, rois[chosen.index], grasp, search)
         grasp = moved if isinstance(moved, GraspCandidate) else grasp
-    return FrameGrounding(choice.grounding, grasp, rois, obs.cam_to_world, table_z, from_table, why)
+    return FrameGrounding(choice.grounding, grasp, rois, obs.cam_to_world, table_z, frame.pose_from_table, why)
+
+
+def ground_frame(
+    grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig, verb: str,
+    rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
+    cam_to_world: npt.ArrayLike | None = None, hand_boxes: Sequence[HandBox] = (),
+) -> FrameGrounding:
+    """Perceive one frame as the testbed's robot does (``perceive``: ``perceive_frame``) and
+    ground ``verb`` over its regions (``choose``). Crops come from ``rgb`` itself (the testbed's
+    are from a sharper render: ``PipelineConfig.rgb_scale``)."""
+    frame = perceive(encoder, config, rgb, depth, intrinsics, cam_to_world,
+                     colours=grounder.colour_cue_active, cavity=grounder.cavity_cue_active)
+    return choose(grounder, frame, verb, hand_boxes)
 
 
 def save_frame(folder: Path, stem: str, obs: Observation) -> tuple[Path, Path, Path]:

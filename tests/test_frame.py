@@ -179,7 +179,7 @@ def test_craft_perceive_names_each_bad_input_before_loading_anything(
     assert "depth image not found" in _bad([*base, "--depth", str(tmp_path / "none.npy")])
     text = tmp_path / "depth.txt"
     text.write_text("0.7\n", encoding="utf-8")
-    assert "depth must be a .npy array of metres or a 16-bit .png" in _bad([*base, "--depth", str(text)])
+    assert "depth must be a .npy array of metres or a 16-bit PNG" in _bad([*base, "--depth", str(text)])
     camera = tmp_path / "camera.json"
     camera.write_text(json.dumps({"fx": 600, "fy": 600, "cx": 32}), encoding="utf-8")
     assert "the camera file lacks cy" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -31,7 +31,6 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
-    from ..frame import FrameGrounding
     from ..grasp.geometry import CameraIntrinsics
 
 #: what a ``--camera`` file holds (the pose is optional)
@@ -39,39 +38,22 @@ CAMERA_KEYS = ("fx", "fy", "cx", "cy")
 
 
 def read_depth(path: Path, scale: float | None) -> npt.NDArray[np.float32]:
-    """A depth image in metres from ``.npy`` (H x W numbers) or a 16-bit ``.png``; integer depth
-    (a RealSense's raw millimetres) needs ``scale``, metres per unit."""
-    import numpy as np
+    """A depth image in metres from ``.npy`` (H x W numbers) or a 16-bit ``.png``
+    (``frame.decode_depth``); integer depth (a RealSense's raw millimetres) needs ``scale``,
+    metres per unit. Every problem exits 2 naming the file."""
+    from ..frame import FrameError, decode_depth
 
     if path.is_dir():
         fail(f"{path}: is a folder; give a depth image (.npy, or a 16-bit .png)")
     if not path.is_file():
         fail(f"{path}: depth image not found")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        try:
-            raw = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            fail(f"{path}: not a .npy array ({exc})")
-    elif suffix == ".png":
-        from PIL import Image, UnidentifiedImageError
-
-        try:
-            with Image.open(path) as img:
-                raw = np.asarray(img)
-        except (OSError, UnidentifiedImageError) as exc:
-            fail(f"{path}: not a readable PNG ({exc})")
-    else:
-        fail(f"{path}: depth must be a .npy array of metres or a 16-bit .png (with --depth-scale)")
-    if raw.ndim != 2 or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
-        fail(f"{path}: depth must be an H x W array of numbers, got shape {raw.shape} ({raw.dtype})")
-    if scale is None:
-        if np.issubdtype(raw.dtype, np.integer):
-            fail(f"{path}: depth is in integer units ({raw.dtype}); say how many metres one unit is, "
-                 "e.g. --depth-scale 0.001 for millimetres")
-        scale = 1.0
-    metres: npt.NDArray[np.float32] = (raw.astype(np.float64) * scale).astype(np.float32)
-    return metres
+    try:
+        return decode_depth(path.read_bytes(), scale)
+    except OSError as exc:
+        fail(f"{path}: not readable ({exc})")
+    except FrameError as exc:
+        text = str(exc).replace("a depth scale of 0.001", "--depth-scale 0.001")
+        fail(f"{path}: {text}")
 
 
 def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntrinsics, list[list[float]] | None]:
@@ -114,23 +96,6 @@ def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntri
              "or left out to measure heights from the table plane")
     intrinsics = CameraIntrinsics(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
     return intrinsics, pose
-
-
-def grasp_summary(found: FrameGrounding) -> dict[str, Any] | None:
-    """The chosen grasp in pixels and in the frame's world (metres, yaw in degrees), or None."""
-    g = found.grasp
-    if g is None or g.pose is None:
-        return None
-    return {
-        "center_px": [round(g.rect.center_xy[0], 1), round(g.rect.center_xy[1], 1)],
-        "angle_deg": round(math.degrees(g.rect.angle_rad), 1),
-        "width_px": round(g.rect.width_px, 1),
-        "quality": round(g.quality, 4),
-        "position_m": [round(float(v), 4) for v in g.pose.position],
-        "yaw_deg": round(math.degrees(g.pose.yaw), 1),
-        "opening_m": round(g.pose.width_m, 4),
-        "fallback": g.fallback,
-    }
 
 
 def perceive(
@@ -212,7 +177,7 @@ def perceive(
         result.notes.append("the size cue is off: some vocabulary objects have no typical size in the bundle "
                             "(--vocab with names that all have one turns it on)")
     out.print(result.render(), highlight=False, markup=False, soft_wrap=True)
-    summary = grasp_summary(found)
+    summary = found.grasp_dict()
     if found.relocation:
         out.print(f"before the pick: {found.relocation}", highlight=False, markup=False, soft_wrap=True)
     if summary is not None:
@@ -223,9 +188,7 @@ def perceive(
                   highlight=False, markup=False, soft_wrap=True)
     if json_out is not None:
         data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": perceiver.encoder.id, **result.to_dict(),
-                "grasp": summary, "relocation": found.relocation, "regions": len(found.rois), "table_z_m": round(found.table_z, 5),
-                "cam_to_world": [[round(float(v), 6) for v in row] for row in found.cam_to_world],
-                "pose_from_table": found.pose_from_table}
+                **found.frame_dict()}
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
         note(f"wrote {json_out}")

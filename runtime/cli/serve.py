@@ -17,6 +17,7 @@ from typing import Annotated
 import typer
 
 from .common import err, fail, grounding_settings
+from .episodes import GripperOpt
 
 
 def listen_problem(host: str, port: int) -> str | None:
@@ -44,17 +45,18 @@ def serve_cmd(
     kb: Annotated[Path, typer.Option(help="Bundle folder (or signed .craft file with --trusted-key).")],
     host: Annotated[str, typer.Option(help="Interface to bind (no auth: keep it local or on a trusted network).")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port (0: any free port).")] = 8080,
-    image_encoder: Annotated[str, typer.Option(help="conse (enables POST /ground_image) | none.")] = "conse",
+    image_encoder: Annotated[str, typer.Option(help="conse (enables POST /ground_image and POST /perceive) | none.")] = "conse",
     threads: Annotated[int, typer.Option(min=1, help="Torch threads of the image encoder.")] = 1,
     max_rois: Annotated[int, typer.Option(min=1, help="Most ROIs accepted in one request (422 above).")] = 64,
     max_body_bytes: Annotated[int, typer.Option(min=1024, help="Largest /ground body in bytes (413 above).")] = 2 * 1024 * 1024,
     temperature: Annotated[float | None, typer.Option(help="Softmax temperature of p(o|r) (default: 0.1, fixed a priori; grounding/settings.py).")] = None,
     open_vocab: Annotated[bool, typer.Option(help="Ground verbs the KB lacks via similar KB verbs (else 404).")] = False,
     trusted_key: Annotated[list[Path] | None, typer.Option("--trusted-key", help="Signer key for a .craft package.")] = None,
+    gripper: GripperOpt = "panda",
     log_level: Annotated[str, typer.Option(help="uvicorn log level: critical | error | warning | info | debug.")] = "info",
     access_log: Annotated[bool, typer.Option(help="Log every request (costs throughput).")] = False,
 ) -> None:
-    """Serve POST /ground, POST /ground_image, GET /healthz and GET /verbs over HTTP."""
+    """Serve POST /ground, POST /ground_image, POST /perceive, GET /healthz and GET /verbs over HTTP."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see cli/main.py: tiny matmuls, busy cores
     import uvicorn
 
@@ -64,6 +66,10 @@ def serve_cmd(
 
     if image_encoder not in ("conse", "none"):
         fail(f"--image-encoder {image_encoder!r}: use conse or none")
+    from ..sim.hands import HANDS
+
+    if gripper not in HANDS:
+        fail(f"--gripper {gripper!r}: use {' or '.join(HANDS)} (the hand POST /perceive checks grasps against)")
     settings = grounding_settings(temperature=temperature, open_vocab=open_vocab)
     problem = listen_problem(host, port)
     if problem is not None:
@@ -73,9 +79,15 @@ def serve_cmd(
     try:
         encoder = load_image_encoder("conse" if image_encoder == "conse" else "none", threads=threads,
                                      sense_weight=settings.class_senses, temperature=settings.conse_temperature)
+        frame_encoder = None
+        if encoder is not None:  # POST /perceive: the robot's encoder (whole square crops)
+            from ..evaluation.sim_eval import default_encoder
+
+            frame_encoder = default_encoder(threads, sense_weight=settings.class_senses,
+                                            temperature=settings.conse_temperature)
         app = create_app(kb, image_encoder=encoder, max_rois=max_rois, settings=settings,
                          trusted_keys=[str(k) for k in trusted_key] if trusted_key else None,
-                         max_body_bytes=max_body_bytes)
+                         max_body_bytes=max_body_bytes, frame_encoder=frame_encoder, gripper=gripper)
     except (BundleError, ServeError, EncoderError) as exc:
         fail(str(exc))
     health = app.state.service.health()

@@ -9,6 +9,9 @@ loading. Endpoints:
   grasp, explanation paths with record ids, excluded ROIs with reasons);
 * ``POST /ground_image`` — the same with a base64 PNG/JPEG and boxes: crops are embedded here
   with the image encoder (ConSE by default), for clients without one;
+* ``POST /perceive`` — one RGB-D frame (base64 PNG/JPEG colour, ``.npy`` or 16-bit PNG depth, the
+  camera's pinhole model): perceived as the testbed's robot perceives (``runtime/frame.py``:
+  regions, grasps, the size and cavity cues) and grounded, with the chosen grasp in metres;
 * ``GET /healthz`` — KB name, version, content hash, dimensions (a load balancer's probe);
 * ``GET /verbs`` — the verbs the KB knows.
 
@@ -47,7 +50,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -69,6 +72,13 @@ from ..grounding.settings import GroundingSettings
 from ..kb.bundle import Bundle, load_bundle
 from ..kb.colours import COLOUR_TERMS
 from ..perception.roi import ROI, BoxSpec, RoiError, boxes_past_the_image, build_rois
+from .frames import CameraIn, decode_base64
+
+if TYPE_CHECKING:
+    from ..encoders.image import ImageEncoder as RobotEncoder
+    from ..frame import FrameGrounding, PerceivedFrame
+    from ..sim.clearance import HandBox
+    from ..sim.pipeline import PipelineConfig
 
 #: Candidate regions per request. A tabletop scene has a handful; the bound keeps one request's
 #: cost (and a hostile client's) small, and is reported in the 422 when exceeded.
@@ -301,6 +311,26 @@ class GroundImageRequest(BaseModel):
     _verb = field_validator("verb")(_check_verb)
 
 
+class PerceiveRequest(BaseModel):
+    model_config = _STRICT
+
+    verb: str = Field(min_length=1, max_length=MAX_VERB_CHARS)
+    rgb_b64: str = Field(min_length=1, description="Base64 of a PNG or JPEG file (RGB), registered to the depth.")
+    depth_b64: str = Field(min_length=1, description=(
+        "Base64 of a .npy file (H x W, metres; 0 = no reading) or of a 16-bit PNG (with depth_scale)."))
+    depth_scale: Annotated[float, Field(gt=0.0, le=10.0, description=(
+        "Metres per depth unit: 0.001 for a RealSense's raw millimetres; left out, float depth is metres "
+        "and integer depth is refused."))] | None = None
+    camera: CameraIn
+    objects: list[Annotated[str, Field(min_length=1, max_length=MAX_LABEL_CHARS)]] | None = Field(
+        None, max_length=MAX_OBJECTS, description=(
+            "The objects the robot may meet, for p(o | r) (default: the KB's). The size cue needs a "
+            "typical size in the bundle for every one (the testbed's 62 names have one)."))
+    options: GroundOptions | None = None
+
+    _verb = field_validator("verb")(_check_verb)
+
+
 class ServeError(ValueError):
     """The server cannot start with this configuration (bundle, encoder); names the fix."""
 
@@ -333,6 +363,11 @@ class GroundingService:
     max_image_boxes: int = DEFAULT_MAX_IMAGE_BOXES
     max_image_pixels: int = MAX_IMAGE_PIXELS
     max_concurrent_images: int = DEFAULT_MAX_CONCURRENT_IMAGES
+    #: ``POST /perceive``: the robot's encoder (whole square crops, ``sim_eval.default_encoder``),
+    #: its pipeline settings and the hand's boxes; None: the endpoint answers 503
+    frame_encoder: RobotEncoder | None = None
+    frame_config: PipelineConfig | None = None
+    hand_boxes: tuple[HandBox, ...] = ()
     _encoder_lock: threading.Lock = field(default_factory=threading.Lock)
     _vocab_grounders: dict[tuple[str, tuple[str, ...], bool, bool], Grounder] = field(default_factory=dict, repr=False)
     _image_slots: threading.BoundedSemaphore | None = field(default=None, repr=False)
@@ -456,6 +491,56 @@ class GroundingService:
             raise _invalid(["boxes", exc.index, "box_xywh"], str(exc), "box_outside_image") from None
         return rois, {"width": int(rgb.shape[1]), "height": int(rgb.shape[0])}
 
+    def perceive_frame(self, req: PerceiveRequest, colours: bool, cavity: bool) -> PerceivedFrame:
+        """Decode the frame and perceive it (``frame.perceive``); a 422 naming the field for
+        anything that is not a frame, 503 when the server has no robot encoder."""
+        from ..frame import FrameError, perceive
+
+        if self.frame_encoder is None or self.frame_config is None:
+            raise _error(503, "perception_disabled",
+                         "this server runs without the robot's perception (craft serve --image-encoder none); "
+                         "perceive on the robot (craft perceive) and POST /ground")
+        rgb = decode_image(req.rgb_b64, self.max_image_pixels, "rgb_b64")
+        raw = decode_base64(req.depth_b64)
+        if raw is None:
+            raise _invalid(["depth_b64"], "not valid base64", "depth_base64")
+        try:
+            from ..frame import decode_depth
+
+            depth = decode_depth(raw, req.depth_scale)
+        except FrameError as exc:
+            raise _invalid(["depth_b64"], str(exc), "depth_decode") from None
+        if depth.size > self.max_image_pixels:
+            raise _error(413, "image_too_large", f"depth is {depth.shape[1]}x{depth.shape[0]} pixels; this "
+                         f"server decodes at most {self.max_image_pixels} pixels", limit_pixels=self.max_image_pixels)
+        if depth.shape != rgb.shape[:2]:
+            raise _invalid(["depth_b64"], f"depth is {depth.shape[1]}x{depth.shape[0]} pixels, the colour image "
+                           f"{rgb.shape[1]}x{rgb.shape[0]}: send both from one registered frame", "frame_shape")
+        intrinsics = req.camera.intrinsics(int(rgb.shape[1]), int(rgb.shape[0]))
+        try:
+            with self._encoder_lock:
+                return perceive(self.frame_encoder, self.frame_config, rgb, depth, intrinsics,
+                                req.camera.cam_to_world, colours=colours, cavity=cavity)
+        except FrameError as exc:
+            raise _invalid(["depth_b64"], str(exc), "frame") from None
+
+    def choose_in_frame(self, grounder: Grounder, frame: PerceivedFrame, verb: str,
+                        options: GroundOptions | None) -> dict[str, Any]:
+        """``frame.choose`` on the event loop, as JSON: ``/ground``'s answer plus the frame's."""
+        from ..frame import choose
+
+        try:
+            found: FrameGrounding = choose(grounder, frame, verb, self.hand_boxes)
+        except UnknownVerbError as exc:
+            raise _error(404, "unknown_verb", str(exc), verb=exc.verb, close_matches=exc.close_matches) from None
+        except ValueError as exc:
+            raise _error(422, "invalid_input", str(exc)) from None
+        data = grounding_json(found.grounding, self.bundle, options)
+        data.update(found.frame_dict())
+        data["image"] = {"width": frame.obs.shape[1], "height": frame.obs.shape[0],
+                         "encoder": self.frame_encoder.id if self.frame_encoder is not None else None}
+        return data
+
     def ground(self, verb: str, rois: list[ROI], options: GroundOptions | None,
                objects: list[str] | None = None) -> dict[str, Any]:
         grounder = self.grounder(options, objects)
@@ -494,19 +579,19 @@ def grounding_json(result: Grounding, bundle: Bundle, options: GroundOptions | N
     return data
 
 
-def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> npt.NDArray[np.uint8]:
-    """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem otherwise (413: too many
-    pixels, judged from the header before anything is decoded)."""
+def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "image_b64") -> npt.NDArray[np.uint8]:
+    """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem (and the field ``name``)
+    otherwise (413: too many pixels, judged from the header before anything is decoded)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
         raw = base64.b64decode(b64, validate=True)
     except (binascii.Error, ValueError):
-        raise _invalid(["image_b64"], "not valid base64", "image_base64") from None
+        raise _invalid([name], "not valid base64", "image_base64") from None
     try:
         with Image.open(io.BytesIO(raw)) as img:
             if img.format not in IMAGE_FORMATS:
-                raise _invalid(["image_b64"], f"image format {img.format}; send PNG or JPEG",
+                raise _invalid([name], f"image format {img.format}; send PNG or JPEG",
                                "image_format")
             if img.width * img.height > max_pixels:
                 raise _error(413, "image_too_large", f"image is {img.width}x{img.height} pixels; "
@@ -514,10 +599,10 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> npt.NDArray[np
                              limit_pixels=max_pixels)
             return np.asarray(img.convert("RGB"), dtype=np.uint8)  # [H, W, 3]
     except UnidentifiedImageError:
-        raise _invalid(["image_b64"], "not a readable PNG/JPEG (the decoded bytes are no image)",
+        raise _invalid([name], "not a readable PNG/JPEG (the decoded bytes are no image)",
                        "image_decode") from None
     except (OSError, Image.DecompressionBombError) as exc:
-        raise _invalid(["image_b64"], f"not a readable PNG/JPEG ({exc})", "image_decode") from None
+        raise _invalid([name], f"not a readable PNG/JPEG ({exc})", "image_decode") from None
 
 
 def build_service(
@@ -557,6 +642,28 @@ def build_service(
         for form in forms
     }
     return GroundingService(bundle, grounders, default, image_encoder, max_rois)
+
+
+def enable_perception(service: GroundingService, encoder: RobotEncoder, gripper: str = "panda",
+                      threads: int = 1) -> None:
+    """Give ``service`` the robot's perception for ``POST /perceive``: ``encoder`` (the robot's,
+    ``sim_eval.default_encoder``, in the bundle's text space, else ``ServeError``), the default
+    pipeline with ``gripper``'s fingers, and its hand's boxes for the approach check."""
+    from ..sim.episode import sim_configs
+    from ..sim.hands import hand_spec
+    from ..sim.pipeline import PipelineConfig
+
+    space = service.bundle.manifest.text_encoder.id
+    if encoder.text_encoder_id != space:
+        raise ServeError(f"image encoder {encoder.id} embeds into {encoder.text_encoder_id}, "
+                         f"the bundle's text encoder is {space}; serve a matching bundle")
+    try:
+        _, pick, fingers = sim_configs(gripper, wrist_look=False)
+    except ValueError as exc:
+        raise ServeError(str(exc)) from None
+    service.frame_encoder = encoder
+    service.frame_config = PipelineConfig(torch_threads=threads, pick=pick, fingers=fingers)
+    service.hand_boxes = hand_spec(gripper).clearance_boxes
 
 
 class BodyLimit:
@@ -652,13 +759,19 @@ def create_app(
     max_image_boxes: int | None = None,
     max_image_pixels: int | None = None,
     max_concurrent_images: int | None = None,
+    frame_encoder: RobotEncoder | None = None,
+    gripper: str = "panda",
 ) -> FastAPI:
     """The FastAPI app over a verified bundle (loaded here, before any request); the keyword
     arguments other than the body and image limits are ``build_service``'s (ignored for a
-    service). Image limits left as None keep the service's (the module defaults)."""
+    service). Image limits left as None keep the service's (the module defaults).
+    ``frame_encoder`` (the robot's, ``sim_eval.default_encoder``) and ``gripper`` enable ``POST
+    /perceive``: the frame's perception as ``craft perceive`` runs it."""
     service = kb if isinstance(kb, GroundingService) else build_service(
         kb, image_encoder=image_encoder, max_rois=max_rois, settings=settings,
         trusted_keys=trusted_keys)
+    if frame_encoder is not None:
+        enable_perception(service, frame_encoder, gripper)
     if max_image_boxes is not None:
         service.max_image_boxes = max_image_boxes
     if max_image_pixels is not None:
@@ -674,7 +787,8 @@ def create_app(
                               f"(content sha256 {m.content_sha256[:16]}...). No network access.")
     app.state.service = service
     app.add_exception_handler(RequestValidationError, _validation_error)
-    app.add_middleware(BodyLimit, limits={"/ground_image": max_image_body_bytes}, default=max_body_bytes)
+    app.add_middleware(BodyLimit, limits={"/ground_image": max_image_body_bytes, "/perceive": max_image_body_bytes},
+                       default=max_body_bytes)
 
     @app.get("/healthz")
     def healthz() -> dict[str, Any]:
@@ -705,10 +819,7 @@ def create_app(
         """
         slot = service.image_slot()
         if not slot.acquire(blocking=False):
-            return JSONResponse({"detail": {
-                "error": "busy", "message": f"{service.max_concurrent_images} images are being "
-                "decoded already; retry in a moment", "limit": service.max_concurrent_images}},
-                503, headers={"Retry-After": "1"})
+            return _busy(service)
         try:
             req = await _parse(request, GroundImageRequest)
             service.check_image_boxes(len(req.boxes))  # before decoding anything
@@ -720,13 +831,43 @@ def create_app(
         data["image"] = {**size, "encoder": service.image_encoder.id if service.image_encoder is not None else None}
         return _json(data)
 
+    @app.post("/perceive", openapi_extra=_body_doc(PerceiveRequest), response_class=JSONResponse)
+    async def perceive_frame(request: Request) -> Response:
+        """Perceive one RGB-D frame as the robot does and choose the object and grasp for a verb.
+
+        Segmentation, one grasp-network pass, the crops' embeddings and the depth cues run in the
+        thread pool (``benchmarks/bench_perception.py`` times the same stages); the choice runs on
+        the event loop.
+        No robot model: the grasp is checked against the open hand and its approach against the
+        depth, not planned (no IK)."""
+        slot = service.image_slot()
+        if not slot.acquire(blocking=False):
+            return _busy(service)
+        try:
+            req = await _parse(request, PerceiveRequest)
+            grounder = service.grounder(req.options, req.objects)
+            frame = await run_in_threadpool(service.perceive_frame, req, grounder.colour_cue_active,
+                                            grounder.cavity_cue_active)
+        finally:
+            slot.release()
+        return _json(service.choose_in_frame(grounder, frame, req.verb, req.options))
+
     @app.get("/docs", include_in_schema=False, response_class=HTMLResponse)
     def docs() -> HTMLResponse:
         """A self-contained API page: no scripts, no CDN, works with no network."""
         return HTMLResponse(_docs_page(app))
 
-    _document_bodies(app, (GroundRequest, GroundImageRequest))
+    _document_bodies(app, (GroundRequest, GroundImageRequest, PerceiveRequest))
     return app
+
+
+def _busy(service: GroundingService) -> JSONResponse:
+    """503 with ``Retry-After`` when ``max_concurrent_images`` images are being decoded already
+    (``/ground_image``, ``/perceive``): refused at once instead of queueing their memory."""
+    return JSONResponse({"detail": {
+        "error": "busy", "message": f"{service.max_concurrent_images} images are being "
+        "decoded already; retry in a moment", "limit": service.max_concurrent_images}},
+        503, headers={"Retry-After": "1"})
 
 
 def _docs_page(app: FastAPI) -> str:
