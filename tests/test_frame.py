@@ -181,6 +181,10 @@ def test_craft_perceive_names_each_bad_input_before_loading_anything(
     text.write_text("0.7\n", encoding="utf-8")
     assert "depth must be a .npy array of metres or a 16-bit PNG" in _bad([*base, "--depth", str(text)])
     camera = tmp_path / "camera.json"
+    assert "camera.json: camera file (JSON: fx, fy, cx, cy, optional cam_to_world) not found" in _bad(
+        [*base, "--depth", str(depth), "--camera", str(camera)])
+    camera.write_text('{"fx": 600,', encoding="utf-8")
+    assert "camera.json: not JSON (Expecting" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])
     camera.write_text(json.dumps({"fx": 600, "fy": 600, "cx": 32}), encoding="utf-8")
     assert "the camera file lacks cy" in _bad([*base, "--depth", str(depth), "--camera", str(camera)])
     camera.write_text(json.dumps({"fx": 600, "fy": 0, "cx": 32, "cy": 24}), encoding="utf-8")

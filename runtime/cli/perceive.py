@@ -65,12 +65,13 @@ def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntri
         note(f"no --camera: assuming RealSense-D435-like intrinsics at {width}x{height} (fx = fy = "
              f"{615.0 * width / 640.0:g}); sizes are only as right as that guess")
         return CameraIntrinsics.realsense_d435(width, height), None
-    if not path.is_file():
-        fail(f"{path}: camera file not found (JSON: {', '.join(CAMERA_KEYS)}, optional cam_to_world)")
+    from ...files import read_json
+
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        fail(f"{path}: not a JSON camera file ({exc})")
+        data = read_json(path, f"camera file (JSON: {', '.join(CAMERA_KEYS)}, optional cam_to_world)",
+                         unique_keys=True)
+    except ValueError as exc:
+        fail(str(exc))
     if not isinstance(data, dict):
         fail(f"{path}: the camera file must be a JSON object with {', '.join(CAMERA_KEYS)}")
     missing = [k for k in CAMERA_KEYS if k not in data]
@@ -189,8 +190,9 @@ def perceive(
     if json_out is not None:
         data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": perceiver.encoder.id, **result.to_dict(),
                 **found.frame_dict()}
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+        from ...files import atomic_write_bytes
+
+        atomic_write_bytes(json_out, (json.dumps(data, indent=1) + "\n").encode())
         note(f"wrote {json_out}")
     if plot is not None:
         from ..grounding.plotting import plot_grounding
