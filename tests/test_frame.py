@@ -356,3 +356,16 @@ def test_a_frame_moves_a_blocked_grasp_as_the_testbed_robot_does() -> None:
     assert isinstance(moved, GraspCandidate) and found.grasp is not None and found.grasp.pose is not None
     np.testing.assert_allclose(found.grasp.pose.position, moved.pose.position, atol=1e-9)
     assert found.grasp.pose.yaw == pytest.approx(moved.pose.yaw)
+
+
+def test_the_figure_draws_a_checked_grasp_through_its_rectangle() -> None:
+    """``craft perceive --plot`` drew no grasp: the chosen grasp is a checked candidate, whose
+    image rectangle is its ``rect``."""
+    from craft_e.runtime.grasp.geometry import Grasp2D
+    from craft_e.runtime.grounding.plotting import _grasp_segment
+    from craft_e.runtime.sim.candidates import GraspCandidate
+
+    rect = Grasp2D((100.0, 50.0), 0.0, 40.0, 20.0, 0.9)
+    assert _grasp_segment(rect) == ((80.0, 50.0), (120.0, 50.0))
+    assert _grasp_segment(GraspCandidate(rect, None)) == _grasp_segment(rect)
+    assert _grasp_segment(None) is None

@@ -197,5 +197,5 @@ def perceive(
     if plot is not None:
         from ..grounding.plotting import plot_grounding
 
-        plot_grounding(colour, result, plot)
+        plot_grounding(colour, result, plot, grasp=found.grasp)
         note(f"wrote {plot}")

@@ -18,7 +18,9 @@ from .grounder import Grounding
 
 
 def _grasp_segment(grasp: Any) -> tuple[tuple[float, float], tuple[float, float]] | None:
-    """Endpoints of a planar grasp's closing axis, if the grasp object describes one."""
+    """Endpoints of a planar grasp's closing axis, if the grasp object describes one (a checked
+    candidate, ``sim.candidates.GraspCandidate``, through its image rectangle ``rect``)."""
+    grasp = getattr(grasp, "rect", grasp)
     center = getattr(grasp, "center_xy", None)
     angle = getattr(grasp, "angle_rad", None)
     width = getattr(grasp, "width_px", None)
@@ -29,8 +31,10 @@ def _grasp_segment(grasp: Any) -> tuple[tuple[float, float], tuple[float, float]
 
 
 def plot_grounding(image: npt.NDArray[np.uint8], grounding: Grounding, out: Path, *, max_paths: int = 6,
-                   title: str | None = None) -> Path:
-    """Write the figure to ``out`` (PNG, or any format matplotlib infers from the suffix)."""
+                   title: str | None = None, grasp: Any = None) -> Path:
+    """Write the figure to ``out`` (PNG, or any format matplotlib infers from the suffix).
+    ``grasp``: the grasp to draw on the chosen region, when not the grounding's own (a relocated
+    one, ``frame.choose``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -57,7 +61,7 @@ def plot_grounding(image: npt.NDArray[np.uint8], grounding: Grounding, out: Path
                     color="white", bbox={"facecolor": cmap(norm(r.total)), "alpha": 0.8, "pad": 1.5,
                                          "edgecolor": "black" if best else "none"})
         if best:
-            seg = _grasp_segment(r.grasp)
+            seg = _grasp_segment(grasp if grasp is not None else r.grasp)
             if seg is not None:
                 ax_img.plot([seg[0][0], seg[1][0]], [seg[0][1], seg[1][1]], color="cyan", linewidth=3)
     for e in grounding.excluded:
@@ -95,7 +99,7 @@ def _draw_path(ax: Any, grounding: Grounding, max_paths: int) -> None:
     p_obj = best.hypotheses[rank].probability if best.hypotheses else 0.0
     who = f"{obj}, p={p_obj:.2f}" + ("" if obj == top else f"; most likely {top}, which has no path")
     paths = sorted(best.paths, key=lambda p: -(p.w_vp + p.w_po))[:max_paths]
-    ax.set_title(f"why ROI {best.index} ({who}): "
+    ax.set_title(f"why ROI {best.index} ({who}):\n"
                  f"E_aff={best.e_aff:.2f} E_align={best.e_align:.2f} E_grasp={best.e_grasp:.2f}", fontsize=9)
     box = {"boxstyle": "round", "facecolor": "#eef", "edgecolor": "#88a"}
     verb_label = grounding.verb + (" (open vocab)" if grounding.open_vocab_used else "")
