@@ -16,7 +16,7 @@ along the table's normal.
 
 Heights need the table. With the camera's pose (``cam_to_world``, z up) the table is the
 height of the fitted plane in that frame; without it, the frame is made from the plane itself
-(``table_pose``): z along its normal, towards the camera, the table at z = 0. Extents,
+(``pose_from_plane``): z along its normal, towards the camera, the table at z = 0. Extents,
 cavities and the finger checks measure heights above the table and lengths along it, so either
 way they are the same to the plane fit's error.
 """
@@ -56,7 +56,49 @@ FloatArray = npt.NDArray[np.float64]
 
 
 class FrameError(ValueError):
-    """A frame that cannot be perceived (shapes, no depth, no table); the message says which."""
+    """A frame that cannot be perceived (shapes, no depth, no table); the message says which,
+    and ``part`` which input is at fault (``rgb``, ``depth``, ``camera``, ``cam_to_world``), so
+    that ``craft perceive`` names the file and ``POST /perceive`` the field."""
+
+    def __init__(self, message: str, part: str = "depth") -> None:
+        super().__init__(message)
+        self.part = part
+
+
+class FrameTooLargeError(FrameError):
+    """A depth image of more pixels than the caller decodes, judged from its header (a PNG of a
+    few KB can claim gigapixels); ``POST /perceive`` answers it with 413."""
+
+    def __init__(self, width: int, height: int, limit: int) -> None:
+        super().__init__(f"depth is {width}x{height} pixels; at most {limit} pixels are decoded (downscale "
+                         "both images, and the camera's fx, fy, cx, cy with them)")
+        self.limit = limit
+
+
+#: Frames smaller than this on a side hold no object region (``SegmentConfig.min_area`` is 150 px).
+MIN_FRAME_SIDE = 32
+#: Frames larger than this (4096 x 4096, as ``craft serve`` decodes) take minutes and gigabytes to
+#: perceive (5000 x 5000: 47 s, 4.6 GB), and no depth camera sends one.
+MAX_FRAME_PIXELS = 4096 * 4096
+#: metres per depth unit beyond this are no unit of a depth image (``POST /perceive`` bounds it too)
+MAX_DEPTH_SCALE = 10.0
+#: The median depth reading a depth camera gives (metres). Outside it the depth is in another unit:
+#: millimetres read as metres put the table 700 m away, and the clearance map of a scene that
+#: size asked for 51 GiB (a MemoryError, or a 500 from the server).
+DEPTH_RANGE_M = (0.02, 20.0)
+#: Fields of view (degrees) a pinhole camera may have across the image. A focal length outside
+#: gives points kilometres apart or pixels apart: fx = 1e9 ran 106 s into a 2.4 TiB allocation.
+FOV_RANGE_DEG = (2.0, 160.0)
+#: The least share of the depth readings on the fitted plane for it to be the table: a depth
+#: camera's frame of a tabletop has most (the testbed's: 78%; with 2 cm of noise: 9%), random
+#: depth about 1%, on which the plane fit still "found" a table and a grasp.
+MIN_TABLE_SHARE = 0.05
+#: Largest angle between the table's normal and ``cam_to_world``'s z axis (degrees): beyond it
+#: the pose is not z up (or the largest plane is a wall), and heights above the table are wrong.
+MAX_TABLE_TILT_DEG = 45.0
+#: ``cam_to_world``'s rotation may be off orthonormal by this much (rounded calibration files).
+RIGID_TOLERANCE = 1e-2
+MAX_POSE_M = 1e6  # metres: a camera's distance from its world's origin (as ``POST /perceive``)
 
 
 @dataclass(frozen=True)
@@ -104,10 +146,14 @@ NPY_MAGIC = b"\x93NUMPY"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def decode_depth(data: bytes, scale: float | None = None) -> npt.NDArray[np.float32]:
+def decode_depth(data: bytes, scale: float | None = None, max_pixels: int | None = None) -> npt.NDArray[np.float32]:
     """A depth image in metres from a ``.npy`` file's bytes (H x W numbers) or a PNG's (16-bit, as
     a RealSense's raw millimetres are saved); integer depth needs ``scale``, metres per unit.
-    ``FrameError`` says what is wrong: another format, another shape, no scale."""
+    ``FrameError`` says what is wrong: another format, another shape, no scale; ``FrameTooLargeError``
+    a PNG of more than ``max_pixels``, read from its header before any pixel is decoded."""
+    if scale is not None and not (math.isfinite(scale) and 0 < scale <= MAX_DEPTH_SCALE):
+        raise FrameError(f"a depth scale of {scale:g}: metres per depth unit must be a positive number up to "
+                         f"{MAX_DEPTH_SCALE:g}, e.g. 0.001 for millimetres")
     if data.startswith(NPY_MAGIC):
         try:
             raw = np.load(io.BytesIO(data), allow_pickle=False)
@@ -118,6 +164,11 @@ def decode_depth(data: bytes, scale: float | None = None) -> npt.NDArray[np.floa
 
         try:
             with Image.open(io.BytesIO(data)) as img:
+                if max_pixels is not None and img.width * img.height > max_pixels:
+                    raise FrameTooLargeError(img.width, img.height, max_pixels)
+                if img.mode == "P":  # a palette's indices would be read as distances
+                    raise FrameError("depth is a palette PNG (colour indices, not distances); save the "
+                                     "camera's depth as a 16-bit grayscale PNG")
                 raw = np.asarray(img)
         except (OSError, UnidentifiedImageError, Image.DecompressionBombError) as exc:
             raise FrameError(f"not a readable PNG ({exc})") from None
@@ -125,16 +176,60 @@ def decode_depth(data: bytes, scale: float | None = None) -> npt.NDArray[np.floa
         raise FrameError("depth must be a .npy array of metres or a 16-bit PNG (with a depth scale)")
     if raw.ndim != 2 or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
         raise FrameError(f"depth must be an H x W array of numbers, got shape {raw.shape} ({raw.dtype})")
-    if scale is not None and not (math.isfinite(scale) and scale > 0):
-        raise FrameError(f"a depth scale of {scale:g}: metres per depth unit must be a positive number, "
-                         "e.g. 0.001 for millimetres")
+    if max_pixels is not None and raw.size > max_pixels:
+        raise FrameTooLargeError(raw.shape[1], raw.shape[0], max_pixels)
     if scale is None:
         if np.issubdtype(raw.dtype, np.integer):
             raise FrameError(f"depth is in integer units ({raw.dtype}); say how many metres one unit is, "
                              "e.g. a depth scale of 0.001 for millimetres")
         scale = 1.0
-    metres: npt.NDArray[np.float32] = (raw.astype(np.float64) * scale).astype(np.float32)
+    with np.errstate(over="ignore"):  # beyond float32: inf, no reading (frame_observation)
+        metres: npt.NDArray[np.float32] = (raw.astype(np.float64) * scale).astype(np.float32)
     return metres
+
+
+def camera_problem(intrinsics: CameraIntrinsics) -> tuple[str, str] | None:
+    """(what is wrong, which input: ``camera``) when ``intrinsics`` cannot be the pinhole model
+    of a camera that took a frame of its size, else None: a focal length giving a field of view
+    outside ``FOV_RANGE_DEG``, or a principal point outside the image. Either spreads the frame's
+    points over kilometres or squeezes them into a pixel, and the grasp search then allocates
+    terabytes or finds nothing without saying why."""
+    k = intrinsics
+    typical = CameraIntrinsics.realsense_d435(k.width, k.height)
+    for name, focal, side, usual in (("fx", k.fx, k.width, typical.fx), ("fy", k.fy, k.height, typical.fy)):
+        if not (math.isfinite(focal) and focal > 0):
+            return f"{name} {focal:g}: a focal length is a positive number of pixels", "camera"
+        fov = math.degrees(2.0 * math.atan(side / (2.0 * focal)))
+        if not FOV_RANGE_DEG[0] <= fov <= FOV_RANGE_DEG[1]:
+            return (f"{name} {focal:g} gives a {fov:.3g} degree field of view across the image's {side} pixels, "
+                    f"no camera's ({FOV_RANGE_DEG[0]:g} to {FOV_RANGE_DEG[1]:g}): give the focal length in pixels of "
+                    f"this image (a RealSense D435's is {usual:g} at this size)"), "camera"
+    for name, centre, side in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
+        if not (math.isfinite(centre) and 0.0 <= centre <= side):
+            return (f"{name} {centre:g} lies outside the image (0 to {side} pixels): the principal point is in "
+                    f"pixels of this image, near its centre ({side / 2:g})"), "camera"
+    return None
+
+
+def pose_problem(pose: FloatArray) -> str | None:
+    """What makes the finite 4 x 4 ``pose`` no camera pose (None: it is one): a last row other
+    than [0, 0, 0, 1], a rotation part that scales, shears, mirrors or is singular (beyond
+    ``RIGID_TOLERANCE``), or a translation beyond ``MAX_POSE_M``. Each used to give heights and a
+    grasp position that were silently wrong (a 2x scale put the table at -0.7 m)."""
+    if np.abs(pose[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-6:
+        return (f"cam_to_world's last row is {[round(float(v), 6) for v in pose[3]]}, not [0, 0, 0, 1]: give "
+                "the camera's pose as a rigid transform")
+    rotation = pose[:3, :3]
+    off = float(np.abs(rotation @ rotation.T - np.eye(3)).max())
+    det = float(np.linalg.det(rotation))
+    if off > RIGID_TOLERANCE or det < 0:
+        return (f"cam_to_world's upper-left 3 x 3 is no rotation (R R^T is off the identity by {off:.3g}, "
+                f"det {det:.3g}): give the camera's pose as a rotation and a translation in metres, with no "
+                "scale, shear or mirror")
+    if np.abs(pose[:3, 3]).max() > MAX_POSE_M:
+        return (f"cam_to_world's translation {[float(v) for v in pose[:3, 3]]} lies beyond {MAX_POSE_M:g} m: "
+                "give it in metres")
+    return None
 
 
 def pose_from_plane(plane: Plane) -> FloatArray:
@@ -155,13 +250,6 @@ def pose_from_plane(plane: Plane) -> FloatArray:
     return out
 
 
-def table_pose(rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.float32], intrinsics: CameraIntrinsics,
-               config: SegmentConfig | None = None) -> FloatArray:
-    """``cam_to_world`` with the frame's table plane at z = 0 (``pose_from_plane`` of the same
-    RANSAC plane segmentation fits)."""
-    return pose_from_plane(_table(Observation(rgb, depth, intrinsics, np.eye(4)), config or SegmentConfig()))
-
-
 def _table(obs: Observation, config: SegmentConfig) -> Plane:
     """The frame's table plane (``segment.table_plane``), or a ``FrameError`` saying why none."""
     try:
@@ -177,30 +265,70 @@ def frame_observation(
     """(the frame, the table's height in its world frame, whether that frame was made from the
     table plane). Depth is metres along the optical axis; 0, NaN and negative values are no
     reading. With ``cam_to_world`` the table's height is the mean world height of the plane's
-    inliers."""
+    inliers.
+
+    A frame that no camera could have taken is refused with a ``FrameError`` naming the input at
+    fault (``FrameError.part``) rather than perceived into a wrong answer: a side under
+    ``MIN_FRAME_SIDE``, a camera model outside ``camera_problem``'s bounds, depth whose median
+    is outside ``DEPTH_RANGE_M`` (another unit), a non-rigid pose, a plane holding under
+    ``MIN_TABLE_SHARE`` of the readings (no table), or one tilted beyond ``MAX_TABLE_TILT_DEG``
+    from the pose's z axis (z down, or not the table)."""
     if rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise FrameError(f"the colour image must be H x W x 3, got {rgb.shape}")
+        raise FrameError(f"the colour image must be H x W x 3, got {rgb.shape}", "rgb")
     if depth.shape != rgb.shape[:2]:
         raise FrameError(f"depth is {depth.shape[0]}x{depth.shape[1]} pixels, the colour image "
                          f"{rgb.shape[0]}x{rgb.shape[1]}: give both from one registered frame")
     if (intrinsics.width, intrinsics.height) != (rgb.shape[1], rgb.shape[0]):
         raise FrameError(f"the camera model is {intrinsics.width}x{intrinsics.height}, the image "
-                         f"{rgb.shape[1]}x{rgb.shape[0]}")
+                         f"{rgb.shape[1]}x{rgb.shape[0]}", "camera")
+    if min(rgb.shape[:2]) < MIN_FRAME_SIDE:
+        raise FrameError(f"the frame is {rgb.shape[1]}x{rgb.shape[0]} pixels, too small to hold a table and an "
+                         f"object (at least {MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}): give the camera's whole frame", "rgb")
+    problem = camera_problem(intrinsics)
+    if problem is not None:
+        raise FrameError(*problem)
     metres = np.asarray(depth, dtype=np.float32)
     metres = np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0)).astype(np.float32)
-    if not np.any(metres > 0):
+    valid = metres > 0
+    if not np.any(valid):
         raise FrameError("the depth image has no valid reading (every pixel is 0, NaN or negative)")
+    median = float(np.median(metres[valid]))
+    if median > DEPTH_RANGE_M[1]:
+        raise FrameError(f"the depth's median reading is {median:g} m, farther than a depth camera sees "
+                         f"({DEPTH_RANGE_M[1]:g} m): float depth is read as metres; if it holds millimetres, "
+                         "give a depth scale of 0.001")
+    if median < DEPTH_RANGE_M[0]:
+        raise FrameError(f"the depth's median reading is {median:g} m, nearer than a depth camera sees "
+                         f"({DEPTH_RANGE_M[0]:g} m): depth must be metres (times the depth scale, if given); "
+                         "check its unit")
+    pose: FloatArray | None = None
+    if cam_to_world is not None:
+        pose = np.asarray(cam_to_world, dtype=np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise FrameError(f"cam_to_world must be a finite 4 x 4 matrix, got shape {pose.shape}", "cam_to_world")
+        why = pose_problem(pose)
+        if why is not None:
+            raise FrameError(why, "cam_to_world")
     colour = np.ascontiguousarray(rgb, dtype=np.uint8)
-    if cam_to_world is None:
-        pose = table_pose(colour, metres, intrinsics, config)
-        return Observation(colour, metres, intrinsics, pose), 0.0, True
-    pose = np.asarray(cam_to_world, dtype=np.float64)
-    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-        raise FrameError(f"cam_to_world must be a finite 4 x 4 matrix, got shape {pose.shape}")
-    obs = Observation(colour, metres, intrinsics, pose)
     cfg = config or SegmentConfig()
+    obs = Observation(colour, metres, intrinsics, np.eye(4) if pose is None else pose)
     plane = _table(obs, cfg)
-    on_table = np.abs(plane.distance(obs.points_camera())) <= cfg.plane.inlier_threshold
+    on_table = valid & (np.abs(plane.distance(obs.points_camera())) <= cfg.plane.inlier_threshold)
+    share = np.count_nonzero(on_table) / np.count_nonzero(valid)
+    if share < MIN_TABLE_SHARE:
+        raise FrameError(f"no table plane in the depth image: the largest plane holds {share:.1%} of the depth "
+                         f"readings (at least {MIN_TABLE_SHARE:.0%} expected): the camera must see the table as "
+                         "the largest flat surface, with depth in metres registered to the colour image")
+    if pose is None:
+        return Observation(colour, metres, intrinsics, pose_from_plane(plane)), 0.0, True
+    up = float(pose[:3, :3] @ np.asarray(plane.normal, dtype=np.float64) @ np.array([0.0, 0.0, 1.0]))
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, up))))
+    if tilt > MAX_TABLE_TILT_DEG:
+        raise FrameError(f"the table plane's normal (towards the camera) is {tilt:.0f} degrees from cam_to_world's z axis"
+                         f"{' (z points down)' if up < 0 else ''}: cam_to_world must map the camera frame "
+                         "(x right, y down, z forward) to a world frame with z up, or be left out to measure "
+                         "heights from the table plane (else the largest flat surface seen is not the table)",
+                         "cam_to_world")
     heights = obs.world_z()[on_table]
     if heights.size == 0:
         raise FrameError("no pixel lies on the table plane")
@@ -251,7 +379,7 @@ def perceive(
     grounder that reads them). A server runs this in a worker thread and ``choose`` on its event
     loop, where its grounders live."""
     if config.grasp == "oracle" or config.rois == "oracle":
-        raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend")
+        raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend", "config")
     cfg = replace(config, rgb_scale=1, ik_filter=False)
     obs, table_z, from_table = frame_observation(rgb, depth, intrinsics, cam_to_world, cfg.segment)
     rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=colours, cavity=cavity)

@@ -37,23 +37,54 @@ if TYPE_CHECKING:
 CAMERA_KEYS = ("fx", "fy", "cx", "cy")
 
 
+def with_option(message: str) -> str:
+    """A ``frame`` message as the command's user reads it: its hint names the option."""
+    return message.replace("a depth scale of 0.001", "--depth-scale 0.001")
+
+
+def read_colour(path: Path) -> npt.NDArray[np.uint8]:
+    """The colour image as H x W x 3 uint8, or exit 2 naming the file: one beyond
+    ``frame.MAX_FRAME_PIXELS`` (judged from its header, before decoding), or a 16-bit or float
+    single-channel image, which converting to RGB clips to white (a depth PNG given as
+    ``--rgb`` was perceived into a different grasp, silently)."""
+    import numpy as np
+    from PIL import Image, UnidentifiedImageError
+
+    from ..frame import MAX_FRAME_PIXELS
+
+    if path.is_dir() or not path.is_file():
+        fail(f"{path}: {'is a folder; give an image file' if path.is_dir() else 'image not found'} (png/jpg)")
+    try:
+        with Image.open(path) as img:
+            if img.width * img.height > MAX_FRAME_PIXELS:
+                fail(f"{path}: the image is {img.width}x{img.height} pixels; at most {MAX_FRAME_PIXELS} are perceived "
+                     "(downscale both images, and the camera's fx, fy, cx, cy with them)")
+            if img.mode.startswith("I") or img.mode == "F":
+                fail(f"{path}: a single-channel {img.mode} image, not 8-bit colour (is it the depth image?); give "
+                     "the colour image (8-bit RGB png/jpg) as --rgb")
+            return np.asarray(img.convert("RGB"), dtype=np.uint8)
+    except Image.DecompressionBombError as exc:
+        fail(f"{path}: too large to decode ({str(exc).rstrip('.')}); downscale it")
+    except (OSError, UnidentifiedImageError) as exc:
+        fail(f"{path}: not a readable image ({exc})")
+
+
 def read_depth(path: Path, scale: float | None) -> npt.NDArray[np.float32]:
     """A depth image in metres from ``.npy`` (H x W numbers) or a 16-bit ``.png``
     (``frame.decode_depth``); integer depth (a RealSense's raw millimetres) needs ``scale``,
     metres per unit. Every problem exits 2 naming the file."""
-    from ..frame import FrameError, decode_depth
+    from ..frame import MAX_FRAME_PIXELS, FrameError, decode_depth
 
     if path.is_dir():
         fail(f"{path}: is a folder; give a depth image (.npy, or a 16-bit .png)")
     if not path.is_file():
         fail(f"{path}: depth image not found")
     try:
-        return decode_depth(path.read_bytes(), scale)
+        return decode_depth(path.read_bytes(), scale, MAX_FRAME_PIXELS)
     except OSError as exc:
         fail(f"{path}: not readable ({exc})")
     except FrameError as exc:
-        text = str(exc).replace("a depth scale of 0.001", "--depth-scale 0.001")
-        fail(f"{path}: {text}")
+        fail(f"{path}: {with_option(str(exc))}")
 
 
 def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntrinsics, list[list[float]] | None]:
@@ -86,6 +117,8 @@ def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntri
     if values["fx"] <= 0 or values["fy"] <= 0:
         fail(f"{path}: fx and fy must be positive (pixels), got {values['fx']:g}, {values['fy']:g}")
     for k in ("width", "height"):
+        if k in data and (isinstance(data[k], bool) or not isinstance(data[k], int | float)):
+            fail(f"{path}: {k} must be a number of pixels, got {data[k]!r}")
         if k in data and data[k] != (width if k == "width" else height):
             fail(f"{path}: {k} {data[k]!r} is not the image's {width if k == 'width' else height}")
     pose = data.get("cam_to_world")
@@ -97,6 +130,24 @@ def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntri
              "or left out to measure heights from the table plane")
     intrinsics = CameraIntrinsics(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
     return intrinsics, pose
+
+
+def check_unique_names(path: Path, names: list[str]) -> None:
+    """Exit 2 naming the file when it lists an object twice, as the grounder would read the names
+    (``Grounder._object_name``: normalised, so ``Knife`` and ``knife`` are one); the grounder's own
+    refusal came after the bundle loaded, naming neither the file nor the fix."""
+    from ...schemas.names import normalize_name
+
+    def key(raw: str) -> str:
+        try:
+            return normalize_name(raw)
+        except ValueError:
+            return raw.strip().lower()
+
+    keys = [key(n) for n in names]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    if twice:
+        fail(f"--vocab {path}: lists {', '.join(twice)} more than once; keep one line for each object")
 
 
 def perceive(
@@ -125,14 +176,14 @@ def perceive(
 ) -> None:
     """Perceive one RGB-D frame as the robot does and choose the object and grasp for a verb."""
     from ...schemas.names import MAX_NAME_CHARS, shown
-    from ..encoders.image import load_image
-    from ..frame import FrameError, FramePerceiver
+    from ..frame import MAX_DEPTH_SCALE, FrameError, FramePerceiver, frame_observation
     from ..grasp.predict import BACKENDS
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.pipeline import NETWORK_SOURCES
 
-    if depth_scale is not None and not (math.isfinite(depth_scale) and depth_scale > 0):
-        fail(f"--depth-scale {depth_scale:g}: metres per depth unit must be a positive number, e.g. 0.001 for mm")
+    if depth_scale is not None and not (math.isfinite(depth_scale) and 0 < depth_scale <= MAX_DEPTH_SCALE):
+        fail(f"--depth-scale {depth_scale:g}: metres per depth unit must be a positive number up to "
+             f"{MAX_DEPTH_SCALE:g}, e.g. 0.001 for mm")
     if len(verb) > MAX_NAME_CHARS:
         fail(f"--verb {shown(verb)} is longer than {MAX_NAME_CHARS} characters")
     if not verb.strip():
@@ -140,6 +191,8 @@ def perceive(
     if grasp not in NETWORK_SOURCES or grasp not in BACKENDS:
         fail(f"--grasp {grasp!r}: choose one of {', '.join(s for s in NETWORK_SOURCES if s in BACKENDS)}")
     vocabulary = read_some_names(vocab, "vocabulary", "--vocab") if vocab is not None else None
+    if vocab is not None and vocabulary is not None:
+        check_unique_names(vocab, vocabulary)
     settings = grounding_settings(energy_form=energy_form, vocabulary=vocabulary)
     from ..sim.episode import sim_configs
 
@@ -147,17 +200,17 @@ def perceive(
         sim_configs(gripper, wrist_look=False)  # an unknown hand is named before anything loads
     except ValueError as exc:
         fail(str(exc))
-    if rgb.is_dir() or not rgb.is_file():
-        fail(f"{rgb}: {'is a folder; give an image file' if rgb.is_dir() else 'image not found'} (png/jpg)")
-    try:
-        colour = load_image(str(rgb))
-    except OSError as exc:
-        fail(f"{rgb}: not a readable image ({exc})")
+    colour = read_colour(rgb)
     depth_m = read_depth(depth, depth_scale)
     if depth_m.shape != colour.shape[:2]:
         fail(f"{depth}: depth is {depth_m.shape[1]}x{depth_m.shape[0]} pixels, {rgb} is "
              f"{colour.shape[1]}x{colour.shape[0]}: give both from one registered frame")
     intrinsics, pose = read_camera(camera, colour.shape[1], colour.shape[0])
+    try:  # the frame's own checks (units, camera model, pose, a table), before anything loads
+        frame_observation(colour, depth_m, intrinsics, pose)
+    except FrameError as exc:
+        source = {"rgb": rgb, "camera": camera, "cam_to_world": camera}.get(exc.part, depth)
+        fail(f"{source if source is not None else 'the default camera model'}: {with_option(str(exc))}")
     try:
         bundle = load_bundle(kb, trusted_keys=[str(k) for k in trusted_key] if trusted_key else None)
     except BundleError as exc:

@@ -318,7 +318,7 @@ class PerceiveRequest(BaseModel):
     rgb_b64: str = Field(min_length=1, description="Base64 of a PNG or JPEG file (RGB), registered to the depth.")
     depth_b64: str = Field(min_length=1, description=(
         "Base64 of a .npy file (H x W, metres; 0 = no reading) or of a 16-bit PNG (with depth_scale)."))
-    depth_scale: Annotated[float, Field(gt=0.0, le=10.0, description=(
+    depth_scale: Annotated[float, Field(gt=0.0, le=10.0, strict=True, description=(
         "Metres per depth unit: 0.001 for a RealSense's raw millimetres; left out, float depth is metres "
         "and integer depth is refused."))] | None = None
     camera: CameraIn
@@ -329,6 +329,11 @@ class PerceiveRequest(BaseModel):
     options: GroundOptions | None = None
 
     _verb = field_validator("verb")(_check_verb)
+
+
+#: ``POST /perceive``'s field for each input a ``frame.FrameError`` blames (``FrameError.part``)
+FRAME_FIELDS: dict[str, list[str]] = {"rgb": ["rgb_b64"], "depth": ["depth_b64"], "camera": ["camera"],
+                                      "cam_to_world": ["camera", "cam_to_world"]}
 
 
 class ServeError(ValueError):
@@ -500,19 +505,19 @@ class GroundingService:
             raise _error(503, "perception_disabled",
                          "this server runs without the robot's perception (craft serve --image-encoder none); "
                          "perceive on the robot (craft perceive) and POST /ground")
-        rgb = decode_image(req.rgb_b64, self.max_image_pixels, "rgb_b64")
+        rgb = decode_image(req.rgb_b64, self.max_image_pixels, "rgb_b64", colour_only=True)
         raw = decode_base64(req.depth_b64)
         if raw is None:
             raise _invalid(["depth_b64"], "not valid base64", "depth_base64")
         try:
-            from ..frame import decode_depth
+            from ..frame import FrameTooLargeError, decode_depth
 
-            depth = decode_depth(raw, req.depth_scale)
+            # the pixel bound is read from a PNG's header: a 10000 x 10000 one took 7.5 s and 1.5 GB to refuse
+            depth = decode_depth(raw, req.depth_scale, self.max_image_pixels)
+        except FrameTooLargeError as exc:
+            raise _error(413, "image_too_large", str(exc), limit_pixels=exc.limit) from None
         except FrameError as exc:
             raise _invalid(["depth_b64"], str(exc), "depth_decode") from None
-        if depth.size > self.max_image_pixels:
-            raise _error(413, "image_too_large", f"depth is {depth.shape[1]}x{depth.shape[0]} pixels; this "
-                         f"server decodes at most {self.max_image_pixels} pixels", limit_pixels=self.max_image_pixels)
         if depth.shape != rgb.shape[:2]:
             raise _invalid(["depth_b64"], f"depth is {depth.shape[1]}x{depth.shape[0]} pixels, the colour image "
                            f"{rgb.shape[1]}x{rgb.shape[0]}: send both from one registered frame", "frame_shape")
@@ -521,8 +526,8 @@ class GroundingService:
             with self._encoder_lock:
                 return perceive(self.frame_encoder, self.frame_config, rgb, depth, intrinsics,
                                 req.camera.cam_to_world, colours=colours, cavity=cavity)
-        except FrameError as exc:
-            raise _invalid(["depth_b64"], str(exc), "frame") from None
+        except FrameError as exc:  # the field at fault: a camera model or pose is not the depth's fault
+            raise _invalid(FRAME_FIELDS.get(exc.part, ["depth_b64"]), str(exc), "frame") from None
 
     def choose_in_frame(self, grounder: Grounder, frame: PerceivedFrame, verb: str,
                         options: GroundOptions | None) -> dict[str, Any]:
@@ -579,9 +584,13 @@ def grounding_json(result: Grounding, bundle: Bundle, options: GroundOptions | N
     return data
 
 
-def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "image_b64") -> npt.NDArray[np.uint8]:
+def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "image_b64", *,
+                 colour_only: bool = False) -> npt.NDArray[np.uint8]:
     """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem (and the field ``name``)
-    otherwise (413: too many pixels, judged from the header before anything is decoded)."""
+    otherwise (413: too many pixels, judged from the header before anything is decoded).
+    ``colour_only`` (``/perceive``'s colour image): a 16-bit or float single-channel image is a
+    422 too, since converting it to RGB clips it to white (a depth PNG sent as the colour
+    image was perceived into another grasp, silently)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -597,6 +606,9 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "imag
                 raise _error(413, "image_too_large", f"image is {img.width}x{img.height} pixels; "
                              f"this server decodes at most {max_pixels} pixels (downscale it)",
                              limit_pixels=max_pixels)
+            if colour_only and (img.mode.startswith("I") or img.mode == "F"):
+                raise _invalid([name], f"a single-channel {img.mode} image, not 8-bit colour (the depth image?); "
+                               "send the colour image as 8-bit RGB PNG or JPEG", "image_mode")
             return np.asarray(img.convert("RGB"), dtype=np.uint8)  # [H, W, 3]
     except UnidentifiedImageError:
         raise _invalid([name], "not a readable PNG/JPEG (the decoded bytes are no image)",

@@ -18,7 +18,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 if TYPE_CHECKING:
     from ..grasp.geometry import CameraIntrinsics
 
-_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+#: strict: ``true`` for a focal length became 1 pixel (a 9 m grasp opening), and "615" went through
+#: as a number where ``craft perceive`` refuses it
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 MAX_FOCAL_PX = 1e5  # pixels: far beyond any camera; keeps a typo from becoming an overflow
 
 
