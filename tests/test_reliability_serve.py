@@ -102,6 +102,21 @@ def test_a_huge_image_is_413_before_decoding(client: TestClient, monkeypatch: py
     assert r.json()["detail"]["error"] == "image_too_large"
 
 
+def test_a_16_bit_image_is_not_clipped_to_white(client: TestClient) -> None:
+    """A 16-bit grey PNG (a depth image) converted to RGB clips to white: ``/ground_image``
+    embedded that white crop as if it were the scene (``/perceive`` too, before the probe round
+    of 2026-12-07). It is a 422 naming the field."""
+
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.fromarray(np.full((64, 64), 700, np.uint16)).save(out, format="PNG")
+    r = client.post("/ground_image", json={"verb": "cut", "image_b64": base64.b64encode(out.getvalue()).decode(),
+                                           "boxes": [{"box_xywh": [0, 0, 32, 32], "grasp_scores": [0.5]}]})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["type"] == "image_mode" and "single-channel" in r.json()["detail"][0]["msg"]
+
+
 def test_too_many_boxes_is_422_before_decoding(client: TestClient, service: GroundingService) -> None:
     encoder = service.image_encoder
     before = encoder.calls

@@ -487,7 +487,7 @@ class GroundingService:
             raise _error(503, "image_encoder_disabled",
                          "this server runs without an image encoder (craft serve --image-encoder "
                          "none); embed crops client-side and POST /ground")
-        rgb = decode_image(req.image_b64, self.max_image_pixels)
+        rgb = decode_image(req.image_b64, self.max_image_pixels, colour_only=True)
         specs = [BoxSpec(b.box_xywh, list(b.grasp_scores), b.label) for b in req.boxes]
         try:
             with self._encoder_lock:
@@ -588,7 +588,7 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "imag
                  colour_only: bool = False) -> npt.NDArray[np.uint8]:
     """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem (and the field ``name``)
     otherwise (413: too many pixels, judged from the header before anything is decoded).
-    ``colour_only`` (``/perceive``'s colour image): a 16-bit or float single-channel image is a
+    ``colour_only`` (both endpoints' colour images): a 16-bit or float single-channel image is a
     422 too, since converting it to RGB clips it to white (a depth PNG sent as the colour
     image was perceived into another grasp, silently)."""
     from PIL import Image, UnidentifiedImageError
