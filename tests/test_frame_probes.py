@@ -10,7 +10,6 @@ loads. One small synthetic frame (a box on a table, seen from above) serves ever
 
 from __future__ import annotations
 
-import base64
 import io
 import json
 import struct
@@ -21,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from frame_bytes import b64, npy_bytes, png_bytes
 from typer.testing import CliRunner
 
 from craft_e.paths import KB_DIR
@@ -44,18 +44,6 @@ def _frame() -> tuple[np.ndarray, np.ndarray]:
     return rgb, depth
 
 
-def _png(array: np.ndarray) -> bytes:
-    from PIL import Image
-
-    out = io.BytesIO()
-    Image.fromarray(array).save(out, format="PNG")
-    return out.getvalue()
-
-
-def _npy(array: np.ndarray) -> bytes:
-    out = io.BytesIO()
-    np.save(out, array, allow_pickle=False)
-    return out.getvalue()
 
 
 def _png_header_only(width: int, height: int) -> bytes:
@@ -135,7 +123,7 @@ def test_a_depth_image_is_refused_before_its_pixels_are_decoded() -> None:
     with pytest.raises(FrameError, match="palette PNG"):
         decode_depth(palette.getvalue(), 0.01)
     with pytest.raises(FrameError, match="up to 10"):
-        decode_depth(_png(np.full((H, W), 700, np.uint16)), 1e300)
+        decode_depth(png_bytes(np.full((H, W), 700, np.uint16)), 1e300)
 
 
 # -- craft perceive: each refusal names the file and comes before the bundle (never read) ----------
@@ -145,8 +133,8 @@ def test_a_depth_image_is_refused_before_its_pixels_are_decoded() -> None:
 def files(tmp_path: Path) -> dict[str, Path]:
     rgb, depth = _frame()
     paths = {"rgb": tmp_path / "rgb.png", "depth": tmp_path / "depth.npy", "camera": tmp_path / "camera.json"}
-    paths["rgb"].write_bytes(_png(rgb))
-    paths["depth"].write_bytes(_npy(depth))
+    paths["rgb"].write_bytes(png_bytes(rgb))
+    paths["depth"].write_bytes(npy_bytes(depth))
     paths["camera"].write_text(json.dumps({"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "cam_to_world": POSE}),
                                encoding="utf-8")
     return paths
@@ -167,7 +155,7 @@ def _bad(files: dict[str, Path], tmp_path: Path, *extra: str, **paths: Path) -> 
 def test_craft_perceive_refuses_a_depth_png_given_as_the_colour_image(files: dict[str, Path], tmp_path: Path) -> None:
     """RGB conversion clipped the 16-bit image to white, and the frame was perceived into another grasp."""
     depth_png = tmp_path / "depth.png"
-    depth_png.write_bytes(_png(np.full((H, W), 700, np.uint16)))
+    depth_png.write_bytes(png_bytes(np.full((H, W), 700, np.uint16)))
     text = _bad(files, tmp_path, rgb=depth_png)
     assert f"{depth_png}: a single-channel I;16 image, not 8-bit colour (is it the depth image?)" in text
 
@@ -185,11 +173,11 @@ def test_craft_perceive_names_the_depth_file_and_the_scale_for_millimetres(files
                                                                           tmp_path: Path) -> None:
     """Float millimetres were read as metres: a MemoryError traceback (51 GiB) after the models loaded."""
     mm = tmp_path / "mm.npy"
-    mm.write_bytes(_npy(_frame()[1] * 1000))
+    mm.write_bytes(npy_bytes(_frame()[1] * 1000))
     text = _bad(files, tmp_path, depth=mm)
     assert f"{mm}: the depth's median reading is 700 m" in text and "give --depth-scale 0.001" in text
     noise = tmp_path / "noise.npy"
-    noise.write_bytes(_npy(_noise()))
+    noise.write_bytes(npy_bytes(_noise()))
     assert f"{noise}: no table plane in the depth image: the largest plane holds" in _bad(files, tmp_path, depth=noise)
     assert "--depth-scale 20: metres per depth unit must be a positive number up to 10" in _bad(
         files, tmp_path, "--depth-scale", "20")
@@ -234,13 +222,9 @@ def client() -> Iterator[Any]:
         yield c
 
 
-def _b64(data: bytes) -> str:
-    return base64.b64encode(data).decode("ascii")
-
-
 def _body(**changes: Any) -> dict[str, Any]:
     rgb, depth = _frame()
-    body: dict[str, Any] = {"verb": "cut", "rgb_b64": _b64(_png(rgb)), "depth_b64": _b64(_npy(depth)),
+    body: dict[str, Any] = {"verb": "cut", "rgb_b64": b64(png_bytes(rgb)), "depth_b64": b64(npy_bytes(depth)),
                             "camera": {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "cam_to_world": POSE}}
     body.update(changes)
     return body
@@ -248,12 +232,12 @@ def _body(**changes: Any) -> dict[str, Any]:
 
 @pytest.mark.parametrize(("changes", "status", "loc", "needle"), [
     # a 500 (MemoryError) on the testbed's frame
-    ({"depth_b64": _b64(_npy(_frame()[1] * 1000))}, 422, ["depth_b64"], "median reading is 700 m"),
-    ({"depth_b64": _b64(_png(np.full((H, W), 700, np.uint16))), "depth_scale": 10}, 422, ["depth_b64"],
+    ({"depth_b64": b64(npy_bytes(_frame()[1] * 1000))}, 422, ["depth_b64"], "median reading is 700 m"),
+    ({"depth_b64": b64(png_bytes(np.full((H, W), 700, np.uint16))), "depth_scale": 10}, 422, ["depth_b64"],
      "median reading is 7000 m"),
-    ({"depth_b64": _b64(_png_header_only(5000, 5000)), "depth_scale": 0.001}, 413, None, "depth is 5000x5000 pixels"),
-    ({"rgb_b64": _b64(_png(np.full((H, W), 700, np.uint16)))}, 422, ["rgb_b64"], "single-channel I;16"),
-    ({"depth_b64": _b64(_npy(_noise()))}, 422, ["depth_b64"], "the largest plane holds"),
+    ({"depth_b64": b64(_png_header_only(5000, 5000)), "depth_scale": 0.001}, 413, None, "depth is 5000x5000 pixels"),
+    ({"rgb_b64": b64(png_bytes(np.full((H, W), 700, np.uint16)))}, 422, ["rgb_b64"], "single-channel I;16"),
+    ({"depth_b64": b64(npy_bytes(_noise()))}, 422, ["depth_b64"], "the largest plane holds"),
     ({"camera": {"fx": True, "fy": K.fy, "cx": K.cx, "cy": K.cy}}, 422, ["camera", "fx"], "valid number"),  # 1 px
     ({"camera": {"fx": K.fx, "fy": K.fy, "cx": 1e5, "cy": K.cy}}, 422, ["camera"], "cx 100000 lies outside"),
     ({"camera": {"fx": 1e5, "fy": 1e5, "cx": K.cx, "cy": K.cy}}, 422, ["camera"], "field of view"),

@@ -7,35 +7,16 @@ frame with a 4xx naming the field, before any network runs.
 
 from __future__ import annotations
 
-import base64
-import io
 from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from frame_bytes import b64, npy_bytes, png_bytes
 
 from craft_e.paths import KB_DIR, SIM_DEV_LABELS
 from craft_e.runtime.perception.observation import Observation
-
-
-def _b64(data: bytes) -> str:
-    return base64.b64encode(data).decode("ascii")
-
-
-def _png(array: np.ndarray) -> bytes:
-    from PIL import Image
-
-    out = io.BytesIO()
-    Image.fromarray(array).save(out, format="PNG")
-    return out.getvalue()
-
-
-def _npy(array: np.ndarray) -> bytes:
-    out = io.BytesIO()
-    np.save(out, array, allow_pickle=False)
-    return out.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +46,7 @@ def _body(obs: Observation, **changes: Any) -> dict[str, Any]:
 
     k = obs.intrinsics
     body: dict[str, Any] = {
-        "verb": "cut", "rgb_b64": _b64(_png(obs.rgb)), "depth_b64": _b64(_npy(obs.depth.astype(np.float32))),
+        "verb": "cut", "rgb_b64": b64(png_bytes(obs.rgb)), "depth_b64": b64(npy_bytes(obs.depth.astype(np.float32))),
         "camera": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy}, "objects": list(sim_vocabulary()),
     }
     body.update(changes)
@@ -89,17 +70,17 @@ def test_perceive_answers_as_craft_perceive_does(client: TestClient, frame: Obse
     assert data["image"]["width"] == 640 and data["chosen_grasp"]["roi"] == data["chosen"]
     # the same frame as a RealSense saves it: 16-bit millimetres, with the scale
     millimetres = np.round(frame.depth * 1000).astype(np.uint16)
-    r = client.post("/perceive", json=_body(frame, depth_b64=_b64(_png(millimetres)), depth_scale=0.001))
+    r = client.post("/perceive", json=_body(frame, depth_b64=b64(png_bytes(millimetres)), depth_scale=0.001))
     assert r.status_code == 200, r.text
     assert r.json()["chosen"] == expected.grounding.chosen.index
 
 
 @pytest.mark.parametrize(("changes", "status", "needle"), [
     ({"depth_b64": "not base64!"}, 422, "not valid base64"),
-    ({"depth_b64": _b64(b"plain text")}, 422, "depth must be a .npy array of metres or a 16-bit PNG"),
-    ({"depth_b64": _b64(_npy(np.full((480, 640), 700, np.uint16)))}, 422, "integer units"),
-    ({"depth_b64": _b64(_npy(np.full((48, 64), 0.7, np.float32)))}, 422, "send both from one registered frame"),
-    ({"depth_b64": _b64(_npy(np.zeros((480, 640), np.float32)))}, 422, "no valid reading"),
+    ({"depth_b64": b64(b"plain text")}, 422, "depth must be a .npy array of metres or a 16-bit PNG"),
+    ({"depth_b64": b64(npy_bytes(np.full((480, 640), 700, np.uint16)))}, 422, "integer units"),
+    ({"depth_b64": b64(npy_bytes(np.full((48, 64), 0.7, np.float32)))}, 422, "send both from one registered frame"),
+    ({"depth_b64": b64(npy_bytes(np.zeros((480, 640), np.float32)))}, 422, "no valid reading"),
     ({"rgb_b64": "%%%"}, 422, "not valid base64"),
     ({"camera": {"fx": 600.0, "cx": 320.0, "cy": 240.0}}, 422, "fy"),
     ({"camera": {"fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "cam_to_world": [[1.0, 0.0, 0.0]]}}, 422,
