@@ -418,6 +418,7 @@ def ground_frame(
     """Perceive one frame as the testbed's robot does (``perceive``: ``perceive_frame``) and
     ground ``verb`` over its regions (``choose``). Crops come from ``rgb`` itself (the testbed's
     are from a sharper render: ``PipelineConfig.rgb_scale``)."""
+    grounder.check_verb(verb)  # an unknown verb before the two network passes, not after
     frame = perceive(encoder, config, rgb, depth, intrinsics, cam_to_world,
                      colours=grounder.colour_cue_active, cavity=grounder.cavity_cue_active)
     return choose(grounder, frame, verb, hand_boxes)

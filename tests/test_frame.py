@@ -369,3 +369,42 @@ def test_the_figure_draws_a_checked_grasp_through_its_rectangle() -> None:
     assert _grasp_segment(rect) == ((80.0, 50.0), (120.0, 50.0))
     assert _grasp_segment(GraspCandidate(rect, None)) == _grasp_segment(rect)
     assert _grasp_segment(None) is None
+
+
+def test_an_unknown_verb_is_named_before_the_frame_is_perceived(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``craft perceive --verb xyzzy`` ran both network passes (about 4 s) before the grounder
+    refused the verb; ``ground_frame`` asks the grounder first."""
+    import craft_e.runtime.frame as frame_module
+    from craft_e.runtime.grounding.grounder import Grounder, UnknownVerbError
+    from craft_e.runtime.grounding.settings import GroundingSettings
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.sim.pipeline import PipelineConfig
+
+    def no_perception(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the frame was perceived for a verb the KB lacks")
+
+    monkeypatch.setattr(frame_module, "perceive", no_perception)
+    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings())
+    k = CameraIntrinsics.realsense_d435(64, 48)
+    with pytest.raises(UnknownVerbError) as caught:
+        frame_module.ground_frame(grounder, None, PipelineConfig(), "cutt",  # type: ignore[arg-type]
+                                  np.zeros((48, 64, 3), np.uint8), np.full((48, 64), 0.7, np.float32), k)
+    assert "cut" in caught.value.close_matches
+
+
+def test_craft_perceive_maps_a_free_request_with_open_vocab(
+    testbed_frames: list[tuple[str, Observation, list[Any]]], tmp_path: Path,
+) -> None:
+    """The unknown-verb message names ``--open-vocab``; ``craft perceive`` has it, as ``craft
+    ground`` does: a free request is mapped to properties and grounded on the frame."""
+    verb, obs, (reference, _) = testbed_frames[0]
+    assert verb == "cut"
+    rgb, depth, camera = save_frame(tmp_path, "scene", obs)
+    args = ["perceive", "--kb", str(KB_DIR / "craft-e-default"), "--rgb", str(rgb), "--depth", str(depth),
+            "--camera", str(camera), "--vocab", str(SIM_VOCAB), "--json", str(tmp_path / "o.json")]
+    refused = runner.invoke(app, [*args, "--verb", "something to slice bread"], env={"COLUMNS": "300"})
+    assert refused.exit_code == 2 and "--open-vocab" in flat(refused.output)
+    result = runner.invoke(app, [*args, "--verb", "something to slice bread", "--open-vocab"], env={"COLUMNS": "300"})
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "o.json").read_text(encoding="utf-8"))
+    assert data["request"] is not None and data["chosen"] == reference.grounding.chosen.index

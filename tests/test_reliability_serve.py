@@ -117,6 +117,19 @@ def test_a_16_bit_image_is_not_clipped_to_white(client: TestClient) -> None:
     assert r.json()["detail"][0]["type"] == "image_mode" and "single-channel" in r.json()["detail"][0]["msg"]
 
 
+def test_an_image_beyond_the_decoders_own_bound_is_413_too(client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
+    """PIL refuses an image of more than twice its ``MAX_IMAGE_PIXELS`` (about 179 MP) while
+    reading the header, before the server's own bound is read: that was a 422 "decompression
+    bomb", where a smaller over-sized image is a 413. Both are 413 now."""
+    from PIL import Image
+
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)  # a 64 x 64 image is then beyond twice the bound
+    r = client.post("/ground_image", json={"verb": "cut", "image_b64": png(64, 64),
+                                           "boxes": [{"box_xywh": [0, 0, 10, 10], "grasp_scores": [0.5]}]})
+    assert r.status_code == 413, r.text
+    assert r.json()["detail"]["error"] == "image_too_large"
+
+
 def test_too_many_boxes_is_422_before_decoding(client: TestClient, service: GroundingService) -> None:
     encoder = service.image_encoder
     before = encoder.calls

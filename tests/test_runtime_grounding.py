@@ -150,7 +150,7 @@ def test_vocabulary_subset_and_unknown_objects(runtime_kbs: RuntimeKBs) -> None:
     assert g.vocabulary == ["cup", "banana", "kettle"] and g.objects_without_knowledge == ["kettle"]
     res = g.ground("eat", [ROI((0, 0, 1, 1), [1.0], image_embedding=obj_emb(runtime_kbs, "banana"))])
     assert {h.name for h in res.ranked[0].hypotheses} <= {"cup", "banana", "kettle"}
-    with pytest.raises(ValueError, match="more than once"):
+    with pytest.raises(ValueError, match="more than once; keep one entry for each object"):
         Grounder(kb, GroundingSettings(vocabulary=["cup", "cups"]))
 
 

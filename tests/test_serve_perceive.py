@@ -112,3 +112,16 @@ def test_craft_serve_names_an_unknown_hand_before_loading_anything(tmp_path: Any
     result = CliRunner().invoke(app, ["serve", "--kb", str(tmp_path / "no-kb"), "--gripper", "claw"])
     assert result.exit_code == 2
     assert "--gripper 'claw': use robotiq_2f85 or panda" in " ".join(result.output.split())
+
+
+def test_an_unknown_verb_is_404_before_the_frame_is_decoded(client: TestClient, frame: Observation,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    service = client.app.state.service  # type: ignore[attr-defined]
+
+    def no_perception(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the frame was decoded and perceived for a verb the KB lacks")
+
+    monkeypatch.setattr(service, "perceive_frame", no_perception)
+    r = client.post("/perceive", json=_body(frame, verb="cutt"))
+    assert r.status_code == 404, r.text
+    assert "cut" in r.json()["detail"]["close_matches"]

@@ -166,6 +166,9 @@ def perceive(
     grasp: Annotated[str, typer.Option(help="Grasp network: grconvnet | ggcnn | ggcnn2.")] = "grconvnet",
     gripper: GripperOpt = "panda",
     energy_form: EnergyFormOpt = None,
+    open_vocab: Annotated[bool, typer.Option(help="Accept verbs the KB lacks and free requests (\"dig a hole\"): "
+                                                  "mapped to properties of similar verbs and properties, or "
+                                                  "abstained on.")] = False,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the grounding, the regions' measurements "
                                                                  "and the grasp as JSON.",
                                                   callback=checked_output_file)] = None,
@@ -193,7 +196,7 @@ def perceive(
     vocabulary = read_some_names(vocab, "vocabulary", "--vocab") if vocab is not None else None
     if vocab is not None and vocabulary is not None:
         check_unique_names(vocab, vocabulary)
-    settings = grounding_settings(energy_form=energy_form, vocabulary=vocabulary)
+    settings = grounding_settings(energy_form=energy_form, vocabulary=vocabulary, open_vocab=open_vocab)
     from ..sim.episode import sim_configs
 
     try:

@@ -392,7 +392,7 @@ class Grounder:
         names = list(m.objects) if vocabulary is None else [self._object_name(o) for o in vocabulary]
         if len(set(names)) != len(names):
             dupes = sorted({n for n in names if names.count(n) > 1})
-            raise ValueError(f"vocabulary lists {', '.join(dupes)} more than once")
+            raise ValueError(f"vocabulary lists {', '.join(dupes)} more than once; keep one entry for each object")
         if not names:
             raise ValueError("the object vocabulary is empty")
         self.vocabulary = names
@@ -797,6 +797,12 @@ class Grounder:
         total = self.alpha * e_grasp + self.beta * e_aff + self.gamma * e_align  # [N]
         f32 = np.float32
         return EnergyTerms(e_grasp.astype(f32), e_aff.astype(f32), e_align.astype(f32), total.astype(f32), p)
+
+    def check_verb(self, verb: str) -> None:
+        """Raise what ``ground`` would raise for ``verb`` (``UnknownVerbError`` with close matches),
+        without any ROI: a caller about to perceive a frame (two network passes) asks first. The
+        verb's plan is kept, so the grounding that follows does not make it again."""
+        self._plan(normalize_verb_name(verb))
 
     def ground(self, verb: str, rois: Sequence[ROI]) -> Grounding:
         """Rank ``rois`` for ``verb`` (lowest total energy first); see the module docstring."""

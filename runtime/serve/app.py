@@ -529,6 +529,13 @@ class GroundingService:
         except FrameError as exc:  # the field at fault: a camera model or pose is not the depth's fault
             raise _invalid(FRAME_FIELDS.get(exc.part, ["depth_b64"]), str(exc), "frame") from None
 
+    def check_verb(self, grounder: Grounder, verb: str) -> None:
+        """404 with close matches for a verb ``grounder`` cannot ground, as ``ground`` answers."""
+        try:
+            grounder.check_verb(verb)
+        except UnknownVerbError as exc:
+            raise _error(404, "unknown_verb", str(exc), verb=exc.verb, close_matches=exc.close_matches) from None
+
     def choose_in_frame(self, grounder: Grounder, frame: PerceivedFrame, verb: str,
                         options: GroundOptions | None) -> dict[str, Any]:
         """``frame.choose`` on the event loop, as JSON: ``/ground``'s answer plus the frame's."""
@@ -613,7 +620,10 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "imag
     except UnidentifiedImageError:
         raise _invalid([name], "not a readable PNG/JPEG (the decoded bytes are no image)",
                        "image_decode") from None
-    except (OSError, Image.DecompressionBombError) as exc:
+    except Image.DecompressionBombError:  # PIL's own bound, met in the header before ours: too large too
+        raise _error(413, "image_too_large", "the image claims more pixels than its decoder takes; this server "
+                     f"decodes at most {max_pixels} pixels (downscale it)", limit_pixels=max_pixels) from None
+    except OSError as exc:
         raise _invalid([name], f"not a readable PNG/JPEG ({exc})", "image_decode") from None
 
 
@@ -858,6 +868,7 @@ def create_app(
         try:
             req = await _parse(request, PerceiveRequest)
             grounder = service.grounder(req.options, req.objects)
+            service.check_verb(grounder, req.verb)  # a 404 before decoding anything
             frame = await run_in_threadpool(service.perceive_frame, req, grounder.colour_cue_active,
                                             grounder.cavity_cue_active)
         finally:
