@@ -424,6 +424,10 @@ def ground_frame(
     return choose(grounder, frame, verb, hand_boxes)
 
 
+#: the files ``save_frame`` writes after its stem
+FRAME_SUFFIXES = ("_rgb.png", "_depth.npy", "_camera.json")
+
+
 def save_frame(folder: Path, stem: str, obs: Observation) -> tuple[Path, Path, Path]:
     """Write ``obs`` as ``craft perceive`` reads a camera's frame: ``<stem>_rgb.png``,
     ``<stem>_depth.npy`` (metres, float32) and ``<stem>_camera.json`` (the pinhole model and
@@ -438,7 +442,8 @@ def save_frame(folder: Path, stem: str, obs: Observation) -> tuple[Path, Path, P
     k = obs.intrinsics
     camera = {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
               "cam_to_world": [[float(v) for v in row] for row in obs.cam_to_world]}
-    paths = (folder / f"{stem}_rgb.png", folder / f"{stem}_depth.npy", folder / f"{stem}_camera.json")
+    rgb_path, depth_path, camera_path = (folder / f"{stem}{suffix}" for suffix in FRAME_SUFFIXES)
+    paths = (rgb_path, depth_path, camera_path)
     for path, data in zip(paths, (png.getvalue(), npy.getvalue(), (json.dumps(camera, indent=1) + "\n").encode()),
                           strict=True):
         atomic_write_bytes(path, data)

@@ -314,3 +314,21 @@ def test_sim_demo_names_what_is_wrong_with_an_episode_id(args: list[str], messag
     result = CliRunner().invoke(app, ["sim", "demo", *args])
     assert result.exit_code != 0
     assert message in " ".join(result.output.split())
+
+
+@pytest.mark.parametrize("name", ["pour_0_rgb.png", "pour_0.png"])
+def test_sim_demo_refuses_a_folder_in_the_way_before_the_episode(tmp_path: Path, name: str) -> None:
+    """A folder (not ours) where the demo writes one of its files ended the demo in a traceback
+    after the figure and GIF were written; now exit 2 naming it, before the episode, nothing written."""
+    from typer.testing import CliRunner
+
+    from craft_e.runtime.cli.main import app
+
+    (tmp_path / name).mkdir()
+    (tmp_path / name / "mine.txt").write_text("keep", encoding="utf-8")
+    result = CliRunner().invoke(app, ["sim", "demo", "--verb", "pour", "--target", "mustard_bottle",
+                                      "--out", str(tmp_path)], env={"COLUMNS": "300"})
+    assert result.exit_code == 2, result.output
+    assert f"{tmp_path / name}: is a folder" in " ".join(result.output.split())
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+    assert (tmp_path / name / "mine.txt").read_text(encoding="utf-8") == "keep"

@@ -65,7 +65,7 @@ def demo(
         episode_record,
         make_episode_specs,
     )
-    from ..frame import save_frame
+    from ..frame import FRAME_SUFFIXES, save_frame
     from ..grounding.grounder import normalize_verb_name
     from ..grounding.settings import GroundingSettings
     from ..grounding.size_cue import CueUnavailableError
@@ -99,6 +99,13 @@ def demo(
         chosen_labels = SimLabels(all_labels.path, (pair,), all_labels.affording)
         spec = make_episode_specs(chosen_labels, layouts=1, seed=seed, env_config=env_config)[0]
         stem = f"{name.replace(' ', '_')}_{seed}"
+    # every file the demo writes, checked before the episode runs: a folder in the way of one
+    # (not ours) ended the demo in a traceback after the figure and GIF were written
+    outputs = [out / f"{stem}{suffix}" for suffix in (".png", ".gif", ".json", *FRAME_SUFFIXES)]
+    in_the_way = [p for p in outputs if p.exists() and not p.is_file()]
+    if in_the_way:
+        fail(f"{in_the_way[0]}: is a folder (or not a file), and the demo writes a file there; "
+             "move it, or give another --out")
     bundle_path = kb or KB_DIR / "craft-e-default"
     try:
         bundle = load_bundle(bundle_path)
