@@ -39,8 +39,6 @@ precomputed matrix (see ``GroundingService.grounder``).
 
 from __future__ import annotations
 
-import base64
-import binascii
 import html
 import io
 import json
@@ -600,10 +598,9 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "imag
     image was perceived into another grasp, silently)."""
     from PIL import Image, UnidentifiedImageError
 
-    try:
-        raw = base64.b64decode(b64, validate=True)
-    except (binascii.Error, ValueError):
-        raise _invalid([name], "not valid base64", "image_base64") from None
+    raw = decode_base64(b64)
+    if raw is None:
+        raise _invalid([name], "not valid base64", "image_base64")
     try:
         with Image.open(io.BytesIO(raw)) as img:
             if img.format not in IMAGE_FORMATS:
