@@ -43,6 +43,7 @@ from .kb.bundle import Bundle
 from .perception.observation import Observation
 from .perception.plane import Plane
 from .perception.segment import SegmentConfig, table_plane
+from .perception.workspace import Workspace
 from .sim.candidates import GraspCandidate
 from .sim.choose import LazyROI, ground_lazily, perceive_frame, relocate_lazily
 from .sim.clearance import HandBox, HeightMap, hand_hits
@@ -57,8 +58,8 @@ FloatArray = npt.NDArray[np.float64]
 
 class FrameError(ValueError):
     """A frame that cannot be perceived (shapes, no depth, no table); the message says which,
-    and ``part`` which input is at fault (``rgb``, ``depth``, ``camera``, ``cam_to_world``), so
-    that ``craft perceive`` names the file and ``POST /perceive`` the field."""
+    and ``part`` which input is at fault (``rgb``, ``depth``, ``camera``, ``cam_to_world``, ``mask``,
+    ``workspace``), so that ``craft perceive`` names the file and ``POST /perceive`` the field."""
 
     def __init__(self, message: str, part: str = "depth") -> None:
         super().__init__(message)
@@ -335,6 +336,42 @@ def frame_observation(
     return obs, float(np.mean(heights)), False
 
 
+def frame_keep(
+    obs: Observation, pose_from_table: bool, mask: npt.NDArray[np.bool_] | None = None,
+    workspace: Workspace | None = None,
+) -> npt.NDArray[np.bool_] | None:
+    """The pixels where objects may be found (``perception/workspace.py``): those of ``mask``
+    (H x W, True: perceive) whose depth point lies inside ``workspace`` (an x-y box, and a
+    ceiling, in the world frame of the camera's given pose); None when neither is given. A
+    ``FrameError`` names the ``mask`` or the ``workspace`` when it does not fit the frame, needs
+    a pose the frame was not given, or leaves no depth reading.
+
+    Only segmentation reads it: the table is fitted, and the grasp network, the finger checks and
+    the hand's approach see, the whole frame, so the robot's base next to an object is still an
+    obstacle to the hand, and an object reaching out of the box keeps only its part inside."""
+    if mask is None and workspace is None:
+        return None
+    keep = np.asarray(obs.depth > 0)
+    if mask is not None:
+        if mask.shape != keep.shape:
+            raise FrameError(f"the mask is {mask.shape[1] if mask.ndim > 1 else '?'}x{mask.shape[0]} pixels, the "
+                             f"frame {keep.shape[1]}x{keep.shape[0]}: give a mask of the frame's size", "mask")
+        keep &= mask
+        if not keep.any():
+            raise FrameError("the mask leaves no depth reading: its non-zero pixels are those perceived", "mask")
+    if workspace is not None:
+        if pose_from_table:
+            raise FrameError("a workspace is an x-y box in the world frame of the camera's pose: give cam_to_world "
+                             "too, or limit the frame with a mask instead", "workspace")
+        keep &= workspace.contains(obs.points_world())
+        if not keep.any():
+            raise FrameError(f"no depth reading lies inside the workspace (x {workspace.x_min:g} to "
+                             f"{workspace.x_max:g}, y {workspace.y_min:g} to {workspace.y_max:g}"
+                             f"{'' if workspace.z_max is None else f', z up to {workspace.z_max:g}'} m in "
+                             "cam_to_world's world frame): check its bounds against the pose", "workspace")
+    return keep
+
+
 def hand_problems(
     table_z: float, pick: PickConfig, boxes: Sequence[HandBox],
 ) -> Callable[[TopDownGrasp, HeightMap], tuple[str | None, str | None]]:
@@ -372,17 +409,18 @@ class PerceivedFrame:
 def perceive(
     encoder: ImageEncoder, config: PipelineConfig, rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating],
     intrinsics: CameraIntrinsics, cam_to_world: npt.ArrayLike | None = None, *, colours: bool = False,
-    cavity: bool = False,
+    cavity: bool = False, mask: npt.NDArray[np.bool_] | None = None, workspace: Workspace | None = None,
 ) -> PerceivedFrame:
     """The torch side of ``ground_frame``: the frame's regions with their grasps (checked as
     grounding asks), embeddings and depth cues (``colours``, ``cavity``: measure them, for a
-    grounder that reads them). A server runs this in a worker thread and ``choose`` on its event
-    loop, where its grounders live."""
+    grounder that reads them); regions only within ``mask`` and ``workspace`` (``frame_keep``). A
+    server runs this in a worker thread and ``choose`` on its event loop, where its grounders live."""
     if config.grasp == "oracle" or config.rois == "oracle":
         raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend", "config")
     cfg = replace(config, rgb_scale=1, ik_filter=False)
     obs, table_z, from_table = frame_observation(rgb, depth, intrinsics, cam_to_world, cfg.segment)
-    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=colours, cavity=cavity)
+    keep = frame_keep(obs, from_table, mask, workspace)
+    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=colours, cavity=cavity, keep=keep)
     return PerceivedFrame(obs, table_z, from_table, rois, cfg)
 
 
@@ -413,14 +451,17 @@ def choose(grounder: Grounder, frame: PerceivedFrame, verb: str, hand_boxes: Seq
 def ground_frame(
     grounder: Grounder, encoder: ImageEncoder, config: PipelineConfig, verb: str,
     rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
-    cam_to_world: npt.ArrayLike | None = None, hand_boxes: Sequence[HandBox] = (),
+    cam_to_world: npt.ArrayLike | None = None, hand_boxes: Sequence[HandBox] = (), *,
+    mask: npt.NDArray[np.bool_] | None = None, workspace: Workspace | None = None,
 ) -> FrameGrounding:
     """Perceive one frame as the testbed's robot does (``perceive``: ``perceive_frame``) and
-    ground ``verb`` over its regions (``choose``). Crops come from ``rgb`` itself (the testbed's
-    are from a sharper render: ``PipelineConfig.rgb_scale``)."""
+    ground ``verb`` over its regions (``choose``), regions only within ``mask`` and
+    ``workspace`` (``frame_keep``). Crops come from ``rgb`` itself (the testbed's are from a
+    sharper render: ``PipelineConfig.rgb_scale``)."""
     grounder.check_verb(verb)  # an unknown verb before the two network passes, not after
     frame = perceive(encoder, config, rgb, depth, intrinsics, cam_to_world,
-                     colours=grounder.colour_cue_active, cavity=grounder.cavity_cue_active)
+                     colours=grounder.colour_cue_active, cavity=grounder.cavity_cue_active, mask=mask,
+                     workspace=workspace)
     return choose(grounder, frame, verb, hand_boxes)
 
 
@@ -456,12 +497,15 @@ class FramePerceiver:
 
     ``vocabulary``: the objects (default: the KB's; the size cue needs a typical size for every
     one, as the testbed's 62 names have); ``gripper``: ``panda`` (the Franka hand) or
-    ``robotiq_2f85``; ``grasp``: ``grconvnet``, ``ggcnn`` or ``ggcnn2``. Bad choices raise
-    ``ValueError`` naming them; a vocabulary the bundle cannot read raises the grounder's error.
+    ``robotiq_2f85``; ``grasp``: ``grconvnet``, ``ggcnn`` or ``ggcnn2``; ``workspace``: the x-y box
+    of the table the robot picks from, in its camera pose's world frame (every frame then needs
+    ``cam_to_world``). Bad choices raise ``ValueError`` naming them; a vocabulary the bundle cannot
+    read raises the grounder's error.
     """
 
     def __init__(self, bundle: Bundle, *, vocabulary: Sequence[str] | None = None, gripper: str = "panda",
-                 grasp: str = "grconvnet", threads: int = 1, settings: GroundingSettings | None = None) -> None:
+                 grasp: str = "grconvnet", threads: int = 1, settings: GroundingSettings | None = None,
+                 workspace: Workspace | None = None) -> None:
         from .evaluation.sim_eval import default_encoder
         from .sim.episode import sim_configs
         from .sim.pipeline import NETWORK_SOURCES
@@ -479,9 +523,13 @@ class FramePerceiver:
             raise ValueError(f"the bundle's text encoder is {bundle.manifest.text_encoder.id}, the image "
                              f"encoder embeds into {self.encoder.text_encoder_id}; use a matching bundle")
         self.config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick, fingers=fingers)  # type: ignore[arg-type]
+        self.workspace = workspace
 
     def ground(self, verb: str, rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating],
-               intrinsics: CameraIntrinsics, cam_to_world: npt.ArrayLike | None = None) -> FrameGrounding:
-        """``ground_frame`` of one frame (depth in metres, 0 = no reading), the hand's approach checked."""
+               intrinsics: CameraIntrinsics, cam_to_world: npt.ArrayLike | None = None, *,
+               mask: npt.NDArray[np.bool_] | None = None) -> FrameGrounding:
+        """``ground_frame`` of one frame (depth in metres, 0 = no reading), the hand's approach checked,
+        within the perceiver's workspace and ``mask`` (H x W, True: perceive; e.g. the robot's own body
+        filtered out)."""
         return ground_frame(self.grounder, self.encoder, self.config, verb, rgb, depth, intrinsics, cam_to_world,
-                            self.hand_boxes)
+                            self.hand_boxes, mask=mask, workspace=self.workspace)

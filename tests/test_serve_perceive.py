@@ -7,6 +7,7 @@ frame with a 4xx naming the field, before any network runs.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from typing import Any
 
@@ -125,3 +126,54 @@ def test_an_unknown_verb_is_404_before_the_frame_is_decoded(client: TestClient, 
     r = client.post("/perceive", json=_body(frame, verb="cutt"))
     assert r.status_code == 404, r.text
     assert "cut" in r.json()["detail"]["close_matches"]
+
+
+def _posed(frame: Observation) -> dict[str, Any]:
+    k = frame.intrinsics
+    return {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "cam_to_world": frame.cam_to_world.tolist()}
+
+
+def test_perceive_within_a_workspace_or_a_mask_answers_as_the_python_api(client: TestClient,
+                                                                         frame: Observation) -> None:
+    """The request's workspace and mask limit the frame as ``FramePerceiver``'s do: the objects on
+    the table's y > 0 half are left out, by the box and by a mask of the same pixels."""
+    from craft_e.runtime.frame import FramePerceiver
+    from craft_e.runtime.kb.bundle import load_bundle
+    from craft_e.runtime.perception.workspace import Workspace
+    from craft_e.runtime.sim.pipeline import sim_vocabulary
+
+    half = Workspace(0.14, 0.61, -0.30, 0.0, 0.30)
+    expected = FramePerceiver(load_bundle(KB_DIR / "craft-e-default"), vocabulary=sim_vocabulary(),
+                              workspace=half).ground("cut", frame.rgb, frame.depth, frame.intrinsics,
+                                                     frame.cam_to_world)
+    full = client.post("/perceive", json=_body(frame, camera=_posed(frame)))
+    r = client.post("/perceive", json=_body(frame, camera=_posed(frame), workspace=dict(zip(
+        ("x_min", "x_max", "y_min", "y_max", "z_max"), half.bounds(), strict=True))))
+    assert full.status_code == 200 and r.status_code == 200, r.text
+    data = r.json()
+    assert 0 < data["regions"] == len(expected.rois) < full.json()["regions"]
+    assert data["chosen"] == (expected.grounding.chosen.index if expected.grounding.chosen is not None else None)
+    assert data["grasp"] == expected.grasp_dict()
+    # the same pixels as a mask: white where the frame's points lie in the box
+    keep = half.contains(frame.points_world()) & (frame.depth > 0)
+    image = np.where(keep[..., None], np.uint8(255), np.uint8(0)).repeat(3, axis=2).astype(np.uint8)
+    masked = client.post("/perceive", json=_body(frame, mask_b64=b64(png_bytes(image))))
+    assert masked.status_code == 200, masked.text
+    assert masked.json()["regions"] == data["regions"]
+
+
+@pytest.mark.parametrize(("changes", "field", "needle"), [
+    ({"workspace": {"x_min": 1.0, "x_max": 0.0, "y_min": 0.0, "y_max": 1.0}}, "workspace",
+     "each minimum must lie below its maximum"),
+    ({"workspace": {"x_min": 0.0, "x_max": 1.0, "y_min": 0.0, "y_max": 1.0}}, "workspace",
+     "give cam_to_world too"),
+    ({"mask_b64": b64(png_bytes(np.full((48, 64), 255, np.uint8)))}, "mask_b64", "give a mask of the frame's size"),
+    ({"mask_b64": b64(png_bytes(np.zeros((480, 640), np.uint8)))}, "mask_b64", "the mask leaves no depth reading"),
+    ({"mask_b64": "%%%"}, "mask_b64", "not valid base64"),
+])
+def test_a_workspace_or_mask_that_does_not_fit_is_422_naming_its_field(client: TestClient, frame: Observation,
+                                                                       changes: dict[str, Any], field: str,
+                                                                       needle: str) -> None:
+    r = client.post("/perceive", json=_body(frame, **changes))
+    assert r.status_code == 422, r.text
+    assert needle in r.text and field in json.dumps(r.json()["detail"])

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from ..grasp.geometry import CameraIntrinsics
+    from ..perception.workspace import Workspace
 
 #: what a ``--camera`` file holds (the pose is optional)
 CAMERA_KEYS = ("fx", "fy", "cx", "cy")
@@ -85,6 +86,45 @@ def read_depth(path: Path, scale: float | None) -> npt.NDArray[np.float32]:
         fail(f"{path}: not readable ({exc})")
     except FrameError as exc:
         fail(f"{path}: {with_option(str(exc))}")
+
+
+def read_mask(path: Path, width: int, height: int) -> npt.NDArray[np.bool_]:
+    """The pixels to perceive from a ``--mask`` image of the frame's size (non-zero: perceive,
+    zero: ignore), or exit 2 naming the file."""
+    import numpy as np
+    from PIL import Image, UnidentifiedImageError
+
+    from ..perception.workspace import mask_from_image
+
+    if path.is_dir() or not path.is_file():
+        fail(f"{path}: {'is a folder; give a mask image file' if path.is_dir() else 'mask image not found'} (png)")
+    try:
+        with Image.open(path) as img:
+            if (img.width, img.height) != (width, height):
+                fail(f"{path}: the mask is {img.width}x{img.height} pixels, the frame {width}x{height}: give a mask "
+                     "of the frame's size (non-zero: perceive, zero: ignore)")
+            # a palette's indices and an alpha channel are not what the mask shows: read its colours
+            image = np.asarray(img if img.mode in ("1", "L", "I", "I;16", "F", "RGB") else img.convert("RGB"))
+    except Image.DecompressionBombError as exc:
+        fail(f"{path}: too large to decode ({str(exc).rstrip('.')})")
+    except (OSError, ValueError, UnidentifiedImageError) as exc:
+        fail(f"{path}: not a readable image ({exc})")
+    try:
+        return mask_from_image(image)
+    except ValueError as exc:
+        fail(f"{path}: {exc}")
+
+
+def parse_workspace(text: str | None) -> Workspace | None:
+    """``--workspace``'s box, or exit 2 saying what is wrong with it."""
+    if text is None:
+        return None
+    from ..perception.workspace import Workspace
+
+    try:
+        return Workspace.parse(text)
+    except ValueError as exc:
+        fail(f"--workspace {exc}")
 
 
 def read_camera(path: Path | None, width: int, height: int) -> tuple[CameraIntrinsics, list[list[float]] | None]:
@@ -176,10 +216,16 @@ def perceive(
                                               callback=checked_plot_file)] = None,
     trusted_key: Annotated[list[Path] | None, typer.Option("--trusted-key", help="Signer key for a .craft package.")] = None,
     threads: Annotated[int, typer.Option(min=1, help="Torch threads of the two networks.")] = 1,
+    workspace: Annotated[str | None, typer.Option(help="x_min,x_max,y_min,y_max[,z_max] (metres, in the --camera "
+                                                       "file's cam_to_world frame): perceive only what stands inside "
+                                                       "this box of the table, below z_max if given (the arm's "
+                                                       "links), e.g. 0.14,0.61,-0.30,0.30,0.30.")] = None,
+    mask: Annotated[Path | None, typer.Option(help="An image of the frame's size: non-zero pixels are perceived, "
+                                                   "zero ones ignored (the robot's own body, the floor).")] = None,
 ) -> None:
     """Perceive one RGB-D frame as the robot does and choose the object and grasp for a verb."""
     from ...schemas.names import MAX_NAME_CHARS, shown
-    from ..frame import MAX_DEPTH_SCALE, FrameError, FramePerceiver, frame_observation
+    from ..frame import MAX_DEPTH_SCALE, FrameError, FramePerceiver, frame_keep, frame_observation
     from ..grasp.predict import BACKENDS
     from ..kb.bundle import BundleError, load_bundle
     from ..sim.pipeline import NETWORK_SOURCES
@@ -193,6 +239,7 @@ def perceive(
         fail("--verb is blank; name the action, e.g. --verb cut")
     if grasp not in NETWORK_SOURCES or grasp not in BACKENDS:
         fail(f"--grasp {grasp!r}: choose one of {', '.join(s for s in NETWORK_SOURCES if s in BACKENDS)}")
+    box = parse_workspace(workspace)
     vocabulary = read_some_names(vocab, "vocabulary", "--vocab") if vocab is not None else None
     if vocab is not None and vocabulary is not None:
         check_unique_names(vocab, vocabulary)
@@ -209,18 +256,25 @@ def perceive(
         fail(f"{depth}: depth is {depth_m.shape[1]}x{depth_m.shape[0]} pixels, {rgb} is "
              f"{colour.shape[1]}x{colour.shape[0]}: give both from one registered frame")
     intrinsics, pose = read_camera(camera, colour.shape[1], colour.shape[0])
+    keep = read_mask(mask, colour.shape[1], colour.shape[0]) if mask is not None else None
+    if box is not None and pose is None:
+        fail(f"--workspace {workspace} is a box in the world frame of the camera's pose: give a --camera file with "
+             "cam_to_world, or limit the frame with --mask instead")
     try:  # the frame's own checks (units, camera model, pose, a table), before anything loads
-        frame_observation(colour, depth_m, intrinsics, pose)
+        observed, _, from_table = frame_observation(colour, depth_m, intrinsics, pose)
+        frame_keep(observed, from_table, keep, box)
     except FrameError as exc:
-        source = {"rgb": rgb, "camera": camera, "cam_to_world": camera}.get(exc.part, depth)
+        source = {"rgb": rgb, "camera": camera, "cam_to_world": camera, "mask": mask,
+                  "workspace": f"--workspace {workspace}"}.get(exc.part, depth)
         fail(f"{source if source is not None else 'the default camera model'}: {with_option(str(exc))}")
     try:
         bundle = load_bundle(kb, trusted_keys=[str(k) for k in trusted_key] if trusted_key else None)
     except BundleError as exc:
         fail(str(exc))
     try:
-        perceiver = FramePerceiver(bundle, gripper=gripper, grasp=grasp, threads=threads, settings=settings)
-        found = perceiver.ground(verb, colour, depth_m, intrinsics, pose)
+        perceiver = FramePerceiver(bundle, gripper=gripper, grasp=grasp, threads=threads, settings=settings,
+                                   workspace=box)
+        found = perceiver.ground(verb, colour, depth_m, intrinsics, pose, mask=keep)
     except (FrameError, ValueError) as exc:  # UnknownVerbError and a cue's refusal included
         fail(str(exc))
     grounder = perceiver.grounder
@@ -230,6 +284,11 @@ def perceive(
                         "links); the testbed's `craft sim demo` does both")
     if found.pose_from_table:
         result.notes.append("no camera pose: heights are measured from the table plane fitted in this frame")
+    if box is not None or keep is not None:
+        limits = " and ".join(x for x in (f"the workspace ({workspace})" if box is not None else "",
+                                          f"the mask ({mask})" if keep is not None else "") if x)
+        result.notes.append(f"regions only within {limits}; the hand's approach is still checked against the "
+                            "whole frame")
     if not grounder.size_cue_active:
         result.notes.append("the size cue is off: some vocabulary objects have no typical size in the bundle "
                             "(--vocab with names that all have one turns it on)")
@@ -245,7 +304,8 @@ def perceive(
                   highlight=False, markup=False, soft_wrap=True)
     if json_out is not None:
         data = {"rgb": str(rgb), "depth": str(depth), "image_encoder": perceiver.encoder.id, **result.to_dict(),
-                **found.frame_dict()}
+                **found.frame_dict(), "workspace": None if box is None else box.bounds(),
+                "mask": None if mask is None else str(mask)}
         from ...files import atomic_write_bytes
 
         atomic_write_bytes(json_out, (json.dumps(data, indent=1) + "\n").encode())

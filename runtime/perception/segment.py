@@ -167,8 +167,10 @@ def open_3x3(mask: BoolMask) -> BoolMask:
     return out
 
 
-def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentation:
-    """ROIs of everything standing on the table, in raster order of their first pixel."""
+def segment(obs: Observation, config: SegmentConfig | None = None, keep: BoolMask | None = None) -> Segmentation:
+    """ROIs of everything standing on the table, in raster order of their first pixel; with
+    ``keep`` (H x W), only of its pixels (a robot's workspace: ``perception/workspace.py``). The
+    table plane is fitted to the whole frame either way."""
     cfg = config or SegmentConfig()
     points = obs.points_camera()  # [H, W, 3], once for the plane fit and the heights
     plane = table_plane(obs, cfg, points)
@@ -180,6 +182,8 @@ def segment(obs: Observation, config: SegmentConfig | None = None) -> Segmentati
         on_table = np.abs(height) <= cfg.plane.inlier_threshold
         near_plane = (height >= -cfg.colour_max_below) & ~above
         foreground = above | _colour_foreground(obs.rgb, on_table, near_plane, cfg)
+    if keep is not None:
+        foreground = foreground & keep
     labels, _ = ndimage.label(foreground, structure=_EIGHT_CONNECTED)
     max_area = cfg.max_area_fraction * foreground.size
     rois: list[Region] = []

@@ -70,7 +70,7 @@ from ..grounding.settings import GroundingSettings
 from ..kb.bundle import Bundle, load_bundle
 from ..kb.colours import COLOUR_TERMS
 from ..perception.roi import ROI, BoxSpec, RoiError, boxes_past_the_image, build_rois
-from .frames import CameraIn, decode_base64
+from .frames import CameraIn, WorkspaceIn, decode_base64
 
 if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder as RobotEncoder
@@ -324,6 +324,12 @@ class PerceiveRequest(BaseModel):
         None, max_length=MAX_OBJECTS, description=(
             "The objects the robot may meet, for p(o | r) (default: the KB's). The size cue needs a "
             "typical size in the bundle for every one (the testbed's 62 names have one)."))
+    workspace: WorkspaceIn | None = Field(None, description=(
+        "Perceive only what stands inside this x-y box of the table (metres, in camera.cam_to_world's "
+        "frame, which it needs): the robot's base, the floor and the table's edge are left out."))
+    mask_b64: str | None = Field(None, min_length=1, description=(
+        "Base64 of a PNG of the frame's size: non-zero pixels are perceived, zero ones ignored (e.g. the "
+        "robot's own body)."))
     options: GroundOptions | None = None
 
     _verb = field_validator("verb")(_check_verb)
@@ -331,7 +337,8 @@ class PerceiveRequest(BaseModel):
 
 #: ``POST /perceive``'s field for each input a ``frame.FrameError`` blames (``FrameError.part``)
 FRAME_FIELDS: dict[str, list[str]] = {"rgb": ["rgb_b64"], "depth": ["depth_b64"], "camera": ["camera"],
-                                      "cam_to_world": ["camera", "cam_to_world"]}
+                                      "cam_to_world": ["camera", "cam_to_world"], "mask": ["mask_b64"],
+                                      "workspace": ["workspace"]}
 
 
 class ServeError(ValueError):
@@ -520,10 +527,16 @@ class GroundingService:
             raise _invalid(["depth_b64"], f"depth is {depth.shape[1]}x{depth.shape[0]} pixels, the colour image "
                            f"{rgb.shape[1]}x{rgb.shape[0]}: send both from one registered frame", "frame_shape")
         intrinsics = req.camera.intrinsics(int(rgb.shape[1]), int(rgb.shape[0]))
+        keep = None
+        if req.mask_b64 is not None:
+            from ..perception.workspace import mask_from_image
+
+            keep = mask_from_image(decode_image(req.mask_b64, self.max_image_pixels, "mask_b64"))
         try:
             with self._encoder_lock:
                 return perceive(self.frame_encoder, self.frame_config, rgb, depth, intrinsics,
-                                req.camera.cam_to_world, colours=colours, cavity=cavity)
+                                req.camera.cam_to_world, colours=colours, cavity=cavity, mask=keep,
+                                workspace=None if req.workspace is None else req.workspace.workspace())
         except FrameError as exc:  # the field at fault: a camera model or pose is not the depth's fault
             raise _invalid(FRAME_FIELDS.get(exc.part, ["depth_b64"]), str(exc), "frame") from None
 

@@ -13,10 +13,11 @@ import base64
 import binascii
 from typing import TYPE_CHECKING, Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 if TYPE_CHECKING:
     from ..grasp.geometry import CameraIntrinsics
+    from ..perception.workspace import Workspace
 
 #: strict: ``true`` for a focal length became 1 pixel (a 9 m grasp opening), and "615" went through
 #: as a number where ``craft perceive`` refuses it
@@ -50,6 +51,35 @@ class CameraIn(BaseModel):
         from ..grasp.geometry import CameraIntrinsics
 
         return CameraIntrinsics(width, height, self.fx, self.fy, self.cx, self.cy)
+
+
+_METRES = Field(ge=-1e6, le=1e6, description="Metres, in cam_to_world's world frame.")
+
+
+class WorkspaceIn(BaseModel):
+    """The x-y box of the table the robot picks from, and optionally a ceiling
+    (``perception/workspace.py``): depth outside it is read as no reading. Needs the camera's
+    ``cam_to_world``."""
+
+    model_config = _STRICT
+
+    x_min: Annotated[float, _METRES]
+    x_max: Annotated[float, _METRES]
+    y_min: Annotated[float, _METRES]
+    y_max: Annotated[float, _METRES]
+    z_max: Annotated[float, Field(ge=-1e6, le=1e6, description=(
+        "Optional ceiling (world z, metres): points above it are no object to pick (the arm's links)."))] | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WorkspaceIn:
+        if not (self.x_min < self.x_max and self.y_min < self.y_max):
+            raise ValueError("each minimum must lie below its maximum (x_min < x_max, y_min < y_max)")
+        return self
+
+    def workspace(self) -> Workspace:
+        from ..perception.workspace import Workspace
+
+        return Workspace(self.x_min, self.x_max, self.y_min, self.y_max, self.z_max)
 
 
 def decode_base64(text: str) -> bytes | None:

@@ -174,7 +174,7 @@ def perceive_for_pick(
 def perceive_frame(
     obs: Observation, sharp: npt.NDArray[np.uint8], table_z: float, encoder: ImageEncoder,
     config: PipelineConfig, *, timings: dict[str, float] | None = None, colours: bool = False,
-    cavity: bool = False,
+    cavity: bool = False, keep: npt.NDArray[np.bool_] | None = None,
 ) -> list[LazyROI]:
     """What the robot computes before grounding: ROIs, one grasp-network pass, the crops'
     embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
@@ -190,7 +190,8 @@ def perceive_frame(
     same maps and embeddings to float rounding, ~1.5-2x faster on CPU); ``perceive``, the
     evaluation's path, keeps the checkpoints' layer layout so published results reproduce.
     ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue);
-    ``cavity``: each ROI's open cavity (the opt-in cavity cue's).
+    ``cavity``: each ROI's open cavity (the opt-in cavity cue's). ``keep``: the pixels where
+    regions may be (``segment``'s; a real robot's workspace, ``frame.frame_keep``).
     Sets this process's numpy BLAS to one thread (``runtime/blas.py``: its spinning threads
     slow torch)."""
     from ..blas import single_threaded_blas
@@ -215,7 +216,7 @@ def perceive_frame(
                          "times a whole number, with 3 channels")
     single_threaded_blas()
     with timed_stage(timings, "segment"):
-        rois = segment(obs, config.segment).rois
+        rois = segment(obs, config.segment, keep).rois
     fast_encoder = inference_encoder(encoder)
     with torch_threads(config.torch_threads):
         with timed_stage(timings, "grasp_net"):
