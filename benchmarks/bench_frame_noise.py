@@ -37,22 +37,14 @@ Run: ``.venv/bin/python benchmarks/bench_frame_noise.py [--scenes 35] [--seed 0]
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
-import os
-import shlex
-import sys
-import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
+from frame_bench import FrameRun, options, percent
 
-from craft_e.arguments import output_file, positive_int
-from craft_e.paths import KB_DIR, SIM_DEV_LABELS
 from craft_e.runtime.grasp.geometry import CameraIntrinsics
 
 Depth = npt.NDArray[np.float32]
@@ -221,10 +213,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def table(title: str, summary: dict[str, dict[str, Any]]) -> str:
     """The Markdown table: one row per setting."""
-
-    def pct(k: int, n: int) -> str:
-        return f"{k}/{n} ({100 * k / n:.1f})" if n else "-"
-
+    pct = percent
     lines = [title, "",
              "| setting | Detect % | same choice as ref. % | with a grasp % | regions / scene | "
              "extents: median abs. error (mm) | extents: median signed error (mm) | scenes measured | refused |",
@@ -246,36 +235,16 @@ def table(title: str, summary: dict[str, dict[str, Any]]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
-    parser.add_argument("--scenes", type=positive_int, default=None, help="the first N pairs (default: all)")
-    parser.add_argument("--seed", type=int, default=0, help="seeds every noise and hole draw")
-    parser.add_argument("--json", type=output_file, default=None)
-    parser.add_argument("--markdown", type=output_file, default=None)
-    args = parser.parse_args()
+    args = options(__doc__.split("\n\n")[0], seed=True).parse_args()
 
-    from craft_e.runtime.evaluation.sim_eval import (
-        default_encoder,
-        load_sim_labels,
-        make_episode_specs,
-    )
     from craft_e.runtime.frame import FrameError, ground_frame
-    from craft_e.runtime.grounding.grounder import Grounder
-    from craft_e.runtime.grounding.settings import GroundingSettings
-    from craft_e.runtime.kb.bundle import load_bundle
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.oracle import gt_rois
-    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
-    load = os.getloadavg()
-    start = time.perf_counter()
-    specs = make_episode_specs(load_sim_labels(args.labels), layouts=1, max_pairs=args.scenes)
-    encoder = default_encoder(1)
-    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings(vocabulary=sim_vocabulary()))
-    config = PipelineConfig()
+    run = FrameRun(args)
     rows: dict[str, list[dict[str, Any]]] = {s.name: [] for s in SETTINGS}
     with SimEnv() as env:
-        for n, spec in enumerate(specs):
+        for n, spec in enumerate(run.specs):
             env.reset(spec.scene)
             env.robot.reset_home()
             obs = env.capture()
@@ -287,7 +256,7 @@ def main() -> None:
                 rng = np.random.default_rng([args.seed, n, i])
                 depth, k = setting.apply(np.asarray(obs.depth, dtype=np.float32), obs.intrinsics, rng)
                 try:
-                    found = ground_frame(grounder, encoder, config, spec.verb, obs.rgb, depth, k,
+                    found = ground_frame(run.grounder, run.encoder, run.config, spec.verb, obs.rgb, depth, k,
                                          obs.cam_to_world if setting.pose else None)
                 except FrameError as exc:
                     row: dict[str, Any] = {"error": str(exc)}
@@ -302,32 +271,19 @@ def main() -> None:
                     compare(row, ref)
                     row["ref_detect"] = ref["detect"]
                 rows[setting.name].append(row)
-            print(f"\r{n + 1}/{len(specs)} scenes", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
-    seconds = time.perf_counter() - start
-    load_after = os.getloadavg()
+            run.progress(n + 1)
     summary = {name: summarise(r) for name, r in rows.items()}
-    command = shlex.join([".venv/bin/python", *sys.argv])
-    title = (f"### `ground_frame` under real-camera depth effects, {len(specs)} sim-dev scenes, seed {args.seed} "
-             f"(`{command}`)")
-    text = table(title, summary)
-    print(text)
-    print(f"{seconds:.0f} s, load average {load[0]:.2f} before / {load_after[0]:.2f} after, {os.cpu_count()} CPUs")
-    if args.markdown is not None:
-        args.markdown.write_text(text, encoding="utf-8")
-    if args.json is not None:
-        for setting_rows in rows.values():
-            for r in setting_rows:
-                r.pop("boxes", None)
-                r.pop("extents_m", None)
-        payload = {
-            "command": command, "scenes": len(specs), "seed": args.seed, "labels": str(args.labels),
-            "kb": "craft-e-default", "match_iou": MATCH_IOU, "seconds": round(seconds, 1),
-            "load_average": [round(load[0], 2), round(load_after[0], 2)], "cpus": os.cpu_count(),
-            "settings": {s.name: {"definition": s.definition, "pose_given": s.pose} for s in SETTINGS},
-            "summary": summary, "per_scene": rows,
-        }
-        args.json.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
+    title = (f"### `ground_frame` under real-camera depth effects, {len(run.specs)} sim-dev scenes, seed {args.seed} "
+             f"(`{run.command}`)")
+    for setting_rows in rows.values():
+        for r in setting_rows:
+            r.pop("boxes", None)
+            r.pop("extents_m", None)
+    run.publish(table(title, summary), {
+        "seed": args.seed, "match_iou": MATCH_IOU,
+        "settings": {s.name: {"definition": s.definition, "pose_given": s.pose} for s in SETTINGS},
+        "summary": summary, "per_scene": rows,
+    })
 
 
 if __name__ == "__main__":

@@ -28,21 +28,12 @@ and ``.json``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import os
-import shlex
-import sys
-import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from craft_e.arguments import output_file, positive_int
-from craft_e.paths import KB_DIR, SIM_DEV_LABELS
+from frame_bench import FrameRun, options, percent
 
 MATCH_IOU = 0.5  # Detect's threshold
 OBJECT_SHARE = 0.5  # a region "is" an object when at least this share of its pixels show one
@@ -140,9 +131,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def table(title: str, summary: dict[str, dict[str, dict[str, Any]]]) -> str:
-    def pct(k: int, n: int) -> str:
-        return f"{k}/{n} ({100 * k / n:.1f})" if n else "-"
-
+    """The Markdown table: one row per camera pose and workspace."""
+    pct = percent
     lines = [title, "",
              "| camera | workspace | Detect % | chose no object | regions / scene | regions not objects / scene | "
              "with a grasp % | refused |",
@@ -161,42 +151,23 @@ def table(title: str, summary: dict[str, dict[str, dict[str, Any]]]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--labels", type=Path, default=SIM_DEV_LABELS)
-    parser.add_argument("--scenes", type=positive_int, default=None, help="the first N pairs (default: all)")
-    parser.add_argument("--json", type=output_file, default=None)
-    parser.add_argument("--markdown", type=output_file, default=None)
-    args = parser.parse_args()
+    args = options(__doc__.split("\n\n")[0]).parse_args()
 
-    from craft_e.runtime.evaluation.sim_eval import (
-        default_encoder,
-        load_sim_labels,
-        make_episode_specs,
-    )
     from craft_e.runtime.frame import FrameError, ground_frame
-    from craft_e.runtime.grounding.grounder import Grounder
-    from craft_e.runtime.grounding.settings import GroundingSettings
-    from craft_e.runtime.kb.bundle import load_bundle
     from craft_e.runtime.perception.workspace import Workspace
     from craft_e.runtime.sim.camera import render
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.oracle import gt_rois
-    from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
     from craft_e.runtime.sim.scene import TableLayout
 
     bounds = TableLayout().placement.bounds
     limits: dict[str, Workspace | None] = {
         "none": None, "objects' area": Workspace(bounds.x_min, bounds.x_max, bounds.y_min, bounds.y_max, CEILING)}
-    load = os.getloadavg()
-    start = time.perf_counter()
-    specs = make_episode_specs(load_sim_labels(args.labels), layouts=1, max_pairs=args.scenes)
-    encoder = default_encoder(1)
-    grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings(vocabulary=sim_vocabulary()))
-    config = PipelineConfig()
+    run = FrameRun(args)
     rows: dict[str, dict[str, list[dict[str, Any]]]] = {v.name: {k: [] for k in limits} for v in VIEWS}
     cameras = {v.name: _camera(v) for v in VIEWS}
     with SimEnv() as env:
-        for n, spec in enumerate(specs):
+        for n, spec in enumerate(run.specs):
             env.reset(spec.scene)
             env.robot.reset_home()
             bodies = {o.body_id for o in env.scene.objects}
@@ -208,7 +179,7 @@ def main() -> None:
                                    if r.label == target), None)
                 for limit, workspace in limits.items():
                     try:
-                        found = ground_frame(grounder, encoder, config, spec.verb, obs.rgb, obs.depth,
+                        found = ground_frame(run.grounder, run.encoder, run.config, spec.verb, obs.rgb, obs.depth,
                                              obs.intrinsics, camera.cam_to_world(), workspace=workspace)
                     except FrameError as exc:
                         row: dict[str, Any] = {"error": str(exc), "target_visible": target_box is not None}
@@ -216,29 +187,16 @@ def main() -> None:
                         row = run_view(found, obs, bodies, target_box)
                     row["scene"] = spec.id
                     rows[view.name][limit].append(row)
-            print(f"\r{n + 1}/{len(specs)} scenes", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
-    seconds = time.perf_counter() - start
-    load_after = os.getloadavg()
+            run.progress(n + 1)
     summary = {view: {limit: summarise(r) for limit, r in by_limit.items()} for view, by_limit in rows.items()}
-    command = shlex.join([".venv/bin/python", *sys.argv])
-    title = f"### `ground_frame` from other camera poses, {len(specs)} sim-dev scenes (`{command}`)"
-    text = table(title, summary)
-    print(text)
-    print(f"{seconds:.0f} s, load average {load[0]:.2f} before / {load_after[0]:.2f} after, {os.cpu_count()} CPUs")
-    if args.markdown is not None:
-        args.markdown.write_text(text, encoding="utf-8")
-    if args.json is not None:
-        payload = {
-            "command": command, "scenes": len(specs), "labels": str(args.labels), "kb": "craft-e-default",
-            "match_iou": MATCH_IOU, "object_share": OBJECT_SHARE, "seconds": round(seconds, 1),
-            "load_average": [round(load[0], 2), round(load_after[0], 2)], "cpus": os.cpu_count(),
-            "views": {v.name: {"definition": v.definition, "eye_m": [round(c, 4) for c in v.eye()],
-                               "target_m": list(TARGET)} for v in VIEWS},
-            "workspaces": {k: None if w is None else w.bounds() for k, w in limits.items()},
-            "summary": summary, "per_scene": rows,
-        }
-        args.json.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
+    title = f"### `ground_frame` from other camera poses, {len(run.specs)} sim-dev scenes (`{run.command}`)"
+    run.publish(table(title, summary), {
+        "match_iou": MATCH_IOU, "object_share": OBJECT_SHARE,
+        "views": {v.name: {"definition": v.definition, "eye_m": [round(c, 4) for c in v.eye()],
+                           "target_m": list(TARGET)} for v in VIEWS},
+        "workspaces": {k: None if w is None else w.bounds() for k, w in limits.items()},
+        "summary": summary, "per_scene": rows,
+    })
 
 
 if __name__ == "__main__":

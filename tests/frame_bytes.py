@@ -1,5 +1,6 @@
 """The bytes a camera's frame travels as (PNG, ``.npy``, base64), for the tests of ``craft
-perceive`` and ``POST /perceive``: written once, so both send frames the same way."""
+perceive`` and ``POST /perceive``: written once, so both send frames the same way; and the
+synthetic frames' camera pose."""
 
 from __future__ import annotations
 
@@ -7,6 +8,10 @@ import base64
 import io
 
 import numpy as np
+
+#: the testbed camera's pose: 0.7 m above (0.375, 0), looking straight down, world z up; a pixel's
+#: world x is 0.375 less its camera y, its world y minus its camera x
+OVERHEAD_POSE = [[0.0, -1.0, 0.0, 0.375], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.7], [0.0, 0.0, 0.0, 1.0]]
 
 
 def b64(data: bytes) -> str:

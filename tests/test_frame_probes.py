@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from frame_bytes import b64, npy_bytes, png_bytes
+from frame_bytes import OVERHEAD_POSE, b64, npy_bytes, png_bytes
 from typer.testing import CliRunner
 
 from craft_e.paths import KB_DIR
@@ -30,8 +30,7 @@ from craft_e.runtime.grasp.geometry import CameraIntrinsics
 
 runner = CliRunner()
 W, H = 128, 96
-#: the testbed camera's pose: 0.7 m above the table, looking straight down, world z up
-POSE = [[0.0, -1.0, 0.0, 0.375], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.7], [0.0, 0.0, 0.0, 1.0]]
+POSE = OVERHEAD_POSE
 K = CameraIntrinsics.realsense_d435(W, H)
 
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from frame_bytes import png_bytes
+from frame_bytes import OVERHEAD_POSE, png_bytes
 from typer.testing import CliRunner
 
 from craft_e.paths import KB_DIR, VOCAB_DIR
@@ -27,9 +27,7 @@ from craft_e.runtime.perception.workspace import Workspace, mask_from_image
 
 runner = CliRunner()
 W, H = 128, 96
-#: the testbed camera's pose: 0.7 m above (0.375, 0), looking straight down, world z up; a pixel's
-#: world y is minus its camera x, so the image's left edge lies at positive y
-POSE = [[0.0, -1.0, 0.0, 0.375], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.7], [0.0, 0.0, 0.0, 1.0]]
+POSE = OVERHEAD_POSE
 K = CameraIntrinsics.realsense_d435(W, H)
 MIDDLE = (slice(38, 58), slice(54, 74))  # world y about 0
 LEFT = (slice(38, 58), slice(4, 20))  # world y about +0.25
