@@ -341,7 +341,7 @@ def frame_keep(
     workspace: Workspace | None = None,
 ) -> npt.NDArray[np.bool_] | None:
     """The pixels where objects may be found (``perception/workspace.py``): those of ``mask``
-    (H x W, True: perceive) whose depth point lies inside ``workspace`` (an x-y box, and a
+    (H x W, True or non-zero: perceive) whose depth point lies inside ``workspace`` (an x-y box, and a
     ceiling, in the world frame of the camera's given pose); None when neither is given. A
     ``FrameError`` names the ``mask`` or the ``workspace`` when it does not fit the frame, needs
     a pose the frame was not given, or leaves no depth reading.
@@ -353,6 +353,9 @@ def frame_keep(
         return None
     keep = np.asarray(obs.depth > 0)
     if mask is not None:
+        mask = np.asarray(mask)
+        if mask.dtype != np.bool_:  # 0/255 or 0/1 numbers, as an image library gives a mask: non-zero perceives
+            mask = mask != 0
         if mask.shape != keep.shape:
             raise FrameError(f"the mask is {mask.shape[1] if mask.ndim > 1 else '?'}x{mask.shape[0]} pixels, the "
                              f"frame {keep.shape[1]}x{keep.shape[0]}: give a mask of the frame's size", "mask")

@@ -82,6 +82,7 @@ def test_a_workspace_or_a_mask_leaves_out_what_stands_outside_it() -> None:
     keep = np.ones((H, W), bool)
     keep[:, :30] = False  # the left box's pixels
     assert _regions(mask=keep) == middle
+    assert _regions(mask=np.where(keep, 255, 0).astype(np.uint8)) == middle  # an image's 0/255, as numbers
     # a ceiling under the boxes' tops (5 cm above the table) leaves neither; one above them, both
     assert _regions(workspace=Workspace(0.0, 1.0, -1.0, 1.0, 0.03)) == []
     assert _regions(workspace=Workspace(0.0, 1.0, -1.0, 1.0, 0.30)) == both
@@ -148,6 +149,12 @@ def test_craft_perceive_names_a_bad_workspace_or_mask_before_loading_anything(fi
     assert result.exit_code == 2 and "black.png" in result.output and "leaves no depth reading" in result.output
     result = _perceive(files, *camera, "--mask", str(tmp_path))
     assert result.exit_code == 2 and "is a folder" in result.output
+    from PIL import Image
+
+    jpeg = tmp_path / "mask.jpg"
+    Image.fromarray(np.full((H, W), 255, np.uint8)).save(jpeg, format="JPEG")
+    result = _perceive(files, *camera, "--mask", str(jpeg))
+    assert result.exit_code == 2 and "mask.jpg: a JPEG mask; save it as PNG" in " ".join(result.output.split())
 
 
 def test_craft_perceive_within_a_workspace_perceives_only_what_stands_in_it(files: dict[str, Path],

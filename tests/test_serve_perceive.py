@@ -128,6 +128,16 @@ def test_an_unknown_verb_is_404_before_the_frame_is_decoded(client: TestClient, 
     assert "cut" in r.json()["detail"]["close_matches"]
 
 
+def _jpeg(array: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.fromarray(array).save(out, format="JPEG")
+    return out.getvalue()
+
+
 def _posed(frame: Observation) -> dict[str, Any]:
     k = frame.intrinsics
     return {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "cam_to_world": frame.cam_to_world.tolist()}
@@ -170,6 +180,7 @@ def test_perceive_within_a_workspace_or_a_mask_answers_as_the_python_api(client:
     ({"mask_b64": b64(png_bytes(np.full((48, 64), 255, np.uint8)))}, "mask_b64", "give a mask of the frame's size"),
     ({"mask_b64": b64(png_bytes(np.zeros((480, 640), np.uint8)))}, "mask_b64", "the mask leaves no depth reading"),
     ({"mask_b64": "%%%"}, "mask_b64", "not valid base64"),
+    ({"mask_b64": b64(_jpeg(np.full((480, 640, 3), 255, np.uint8)))}, "mask_b64", "send a PNG"),
 ])
 def test_a_workspace_or_mask_that_does_not_fit_is_422_naming_its_field(client: TestClient, frame: Observation,
                                                                        changes: dict[str, Any], field: str,

@@ -100,6 +100,9 @@ def read_mask(path: Path, width: int, height: int) -> npt.NDArray[np.bool_]:
         fail(f"{path}: {'is a folder; give a mask image file' if path.is_dir() else 'mask image not found'} (png)")
     try:
         with Image.open(path) as img:
+            if img.format == "JPEG":
+                fail(f"{path}: a JPEG mask; save it as PNG (JPEG's compression leaves non-zero pixels beside the "
+                     "mask's edges, which would be perceived)")
             if (img.width, img.height) != (width, height):
                 fail(f"{path}: the mask is {img.width}x{img.height} pixels, the frame {width}x{height}: give a mask "
                      "of the frame's size (non-zero: perceive, zero: ignore)")

@@ -531,7 +531,7 @@ class GroundingService:
         if req.mask_b64 is not None:
             from ..perception.workspace import mask_from_image
 
-            keep = mask_from_image(decode_image(req.mask_b64, self.max_image_pixels, "mask_b64"))
+            keep = mask_from_image(decode_image(req.mask_b64, self.max_image_pixels, "mask_b64", png_only=True))
         try:
             with self._encoder_lock:
                 return perceive(self.frame_encoder, self.frame_config, rgb, depth, intrinsics,
@@ -603,12 +603,13 @@ def grounding_json(result: Grounding, bundle: Bundle, options: GroundOptions | N
 
 
 def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "image_b64", *,
-                 colour_only: bool = False) -> npt.NDArray[np.uint8]:
+                 colour_only: bool = False, png_only: bool = False) -> npt.NDArray[np.uint8]:
     """Base64 PNG/JPEG -> ``HxWx3`` uint8; a 422 naming the problem (and the field ``name``)
     otherwise (413: too many pixels, judged from the header before anything is decoded).
     ``colour_only`` (both endpoints' colour images): a 16-bit or float single-channel image is a
     422 too, since converting it to RGB clips it to white (a depth PNG sent as the colour
-    image was perceived into another grasp, silently)."""
+    image was perceived into another grasp, silently). ``png_only`` (a mask): JPEG is a 422, since
+    its compression leaves non-zero pixels beside a mask's edges."""
     from PIL import Image, UnidentifiedImageError
 
     raw = decode_base64(b64)
@@ -616,8 +617,8 @@ def decode_image(b64: str, max_pixels: int = MAX_IMAGE_PIXELS, name: str = "imag
         raise _invalid([name], "not valid base64", "image_base64")
     try:
         with Image.open(io.BytesIO(raw)) as img:
-            if img.format not in IMAGE_FORMATS:
-                raise _invalid([name], f"image format {img.format}; send PNG or JPEG",
+            if img.format not in IMAGE_FORMATS or (png_only and img.format != "PNG"):
+                raise _invalid([name], f"image format {img.format}; send {'a PNG' if png_only else 'PNG or JPEG'}",
                                "image_format")
             if img.width * img.height > max_pixels:
                 raise _error(413, "image_too_large", f"image is {img.width}x{img.height} pixels; "
