@@ -5,10 +5,11 @@ camera is always straight above the table's middle, 0.70 m up, and sees the tabl
 robot's camera is mounted where it fits: tilted, farther away, with the robot's own base, the
 table's edge or the floor in view. Segmentation finds everything that stands above the table
 plane, so what is not an object becomes a region like any other, and grounding may choose it.
-This benchmark renders each sim-dev scene from other camera poses, grounds the frame with the
-camera's pose given, with and without a workspace (``perception/workspace.py``: the table's box
-where the testbed places its objects, ``PlacementConfig.bounds``, under a ceiling ``CEILING``), and
-counts:
+This benchmark renders each sim-dev scene from other camera poses and grounds the frame with the
+camera's pose given, four ways: with and without a workspace (``perception/workspace.py``: the
+table's box where the testbed places its objects, ``PlacementConfig.bounds``, under a ceiling
+``CEILING``), each with and without splitting a region whose raised points stand apart on the
+table (``SegmentConfig.split_on_table``, a frame's default since session 40); and counts:
 
 * Detect: the chosen region's box has IoU >= 0.5 with the target's true box (``sim.oracle.gt_rois``,
   from that camera);
@@ -22,12 +23,13 @@ own eye; the camera model is the testbed's (640 x 480, fx = fy = 615). The robot
 posture. Nothing is random: the scenes are ``make_episode_specs(..., layouts=1)``'s.
 
 Run: ``.venv/bin/python benchmarks/bench_frame_views.py [--scenes 35] [--json OUT] [--markdown OUT]``
-(all 35 sim-dev pairs by default; about 8 min on 2 cores). Results: ``docs/results/frame_views.md``
+(all 35 sim-dev pairs by default; about 9 min on 2 cores). Results: ``docs/results/frame_views.md``
 and ``.json``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -134,7 +136,7 @@ def table(title: str, summary: dict[str, dict[str, dict[str, Any]]]) -> str:
     """The Markdown table: one row per camera pose and workspace."""
     pct = percent
     lines = [title, "",
-             "| camera | workspace | Detect % | chose no object | regions / scene | regions not objects / scene | "
+             "| camera | workspace, split | Detect % | chose no object | regions / scene | regions not objects / scene | "
              "with a grasp % | refused |",
              "|---|---|---:|---:|---:|---:|---:|---:|"]
     for view, by_limit in summary.items():
@@ -146,7 +148,8 @@ def table(title: str, summary: dict[str, dict[str, dict[str, Any]]]) -> str:
               "half of a region's pixels show a scene object (in these views, the arm and the drop zone's marker). "
               f"Workspace: `--workspace 0.14,0.61,-0.30,0.30,{CEILING:g}` (the box where the testbed places objects, "
               f"under a ceiling {CEILING:g} m above the table: the arm's links at home hang higher); none: the whole "
-              "frame."]
+              "frame. Split: a region whose raised points form clusters apart on the table is split "
+              "(`SegmentConfig.split_on_table`, on for a camera's frames since session 40); no split: as before."]
     return "\n".join(lines) + "\n"
 
 
@@ -161,9 +164,15 @@ def main() -> None:
     from craft_e.runtime.sim.scene import TableLayout
 
     bounds = TableLayout().placement.bounds
-    limits: dict[str, Workspace | None] = {
-        "none": None, "objects' area": Workspace(bounds.x_min, bounds.x_max, bounds.y_min, bounds.y_max, CEILING)}
+    area = Workspace(bounds.x_min, bounds.x_max, bounds.y_min, bounds.y_max, CEILING)
+    # (workspace, split regions on the table): each frame grounded four ways
+    limits: dict[str, tuple[Workspace | None, bool]] = {
+        "none, no split": (None, False), "objects' area, no split": (area, False),
+        "none (the default)": (None, True), "objects' area": (area, True)}
     run = FrameRun(args)
+    configs = {split: dataclasses.replace(run.config, segment=dataclasses.replace(run.config.segment,
+                                                                                    split_on_table=split))
+               for split in (False, True)}
     rows: dict[str, dict[str, list[dict[str, Any]]]] = {v.name: {k: [] for k in limits} for v in VIEWS}
     cameras = {v.name: _camera(v) for v in VIEWS}
     with SimEnv() as env:
@@ -177,10 +186,10 @@ def main() -> None:
                 obs = render(env.client, camera)
                 target_box = next((tuple(float(v) for v in r.box_xywh) for r in gt_rois(obs, env.scene)
                                    if r.label == target), None)
-                for limit, workspace in limits.items():
+                for limit, (workspace, split) in limits.items():
                     try:
-                        found = ground_frame(run.grounder, run.encoder, run.config, spec.verb, obs.rgb, obs.depth,
-                                             obs.intrinsics, camera.cam_to_world(), workspace=workspace)
+                        found = ground_frame(run.grounder, run.encoder, configs[split], spec.verb, obs.rgb,
+                                             obs.depth, obs.intrinsics, camera.cam_to_world(), workspace=workspace)
                     except FrameError as exc:
                         row: dict[str, Any] = {"error": str(exc), "target_visible": target_box is not None}
                     else:
@@ -194,7 +203,8 @@ def main() -> None:
         "match_iou": MATCH_IOU, "object_share": OBJECT_SHARE,
         "views": {v.name: {"definition": v.definition, "eye_m": [round(c, 4) for c in v.eye()],
                            "target_m": list(TARGET)} for v in VIEWS},
-        "workspaces": {k: None if w is None else w.bounds() for k, w in limits.items()},
+        "settings": {k: {"workspace": None if w is None else w.bounds(), "split_on_table": split}
+                     for k, (w, split) in limits.items()},
         "summary": summary, "per_scene": rows,
     })
 

@@ -43,7 +43,8 @@ def options(description: str, *, seed: bool = False) -> argparse.ArgumentParser:
 class FrameRun:
     """The sim-dev scenes (one layout per pair), CRAFT-E as ``craft perceive`` grounds a frame
     (``craft-e-default``, the sim vocabulary, the robot's encoder at 1 thread, the default
-    ``PipelineConfig``), and the run's start, for its timing."""
+    ``PipelineConfig`` with a frame's segmentation, ``frame.FRAME_SEGMENT``), and the run's
+    start, for its timing."""
 
     args: argparse.Namespace
     specs: list[Any] = field(init=False)
@@ -59,6 +60,7 @@ class FrameRun:
             load_sim_labels,
             make_episode_specs,
         )
+        from craft_e.runtime.frame import FRAME_SEGMENT
         from craft_e.runtime.grounding.grounder import Grounder
         from craft_e.runtime.grounding.settings import GroundingSettings
         from craft_e.runtime.kb.bundle import load_bundle
@@ -69,7 +71,7 @@ class FrameRun:
         self.specs = make_episode_specs(load_sim_labels(self.args.labels), layouts=1, max_pairs=self.args.scenes)
         self.encoder = default_encoder(1)
         self.grounder = Grounder(load_bundle(KB_DIR / "craft-e-default"), GroundingSettings(vocabulary=sim_vocabulary()))
-        self.config = PipelineConfig()
+        self.config = PipelineConfig(segment=FRAME_SEGMENT)
 
     @property
     def command(self) -> str:

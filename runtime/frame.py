@@ -100,6 +100,11 @@ MAX_TABLE_TILT_DEG = 45.0
 #: ``cam_to_world``'s rotation may be off orthonormal by this much (rounded calibration files).
 RIGID_TOLERANCE = 1e-2
 MAX_POSE_M = 1e6  # metres: a camera's distance from its world's origin (as ``POST /perceive``)
+#: How a camera's frame is segmented: as the testbed's robot does, and a region whose raised points
+#: form clusters apart on the table is split (``segment.split_on_table``): a camera at an angle sees
+#: near objects overlap far ones (``benchmarks/bench_frame_views.py``). The testbed's evaluations
+#: keep it off, as their published tables were made.
+FRAME_SEGMENT = SegmentConfig(split_on_table=True)
 
 
 @dataclass(frozen=True)
@@ -525,7 +530,8 @@ class FramePerceiver:
         if self.encoder.text_encoder_id != bundle.manifest.text_encoder.id:
             raise ValueError(f"the bundle's text encoder is {bundle.manifest.text_encoder.id}, the image "
                              f"encoder embeds into {self.encoder.text_encoder_id}; use a matching bundle")
-        self.config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick, fingers=fingers)  # type: ignore[arg-type]
+        self.config = PipelineConfig(grasp=grasp, torch_threads=threads, pick=pick, fingers=fingers,  # type: ignore[arg-type]
+                                     segment=FRAME_SEGMENT)
         self.workspace = workspace
 
     def ground(self, verb: str, rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating],

@@ -175,3 +175,54 @@ def test_craft_perceive_within_a_workspace_perceives_only_what_stands_in_it(file
     result = _perceive(files, "--mask", str(mask), "--json", str(out))
     assert result.exit_code == 0, result.output
     assert json.loads(out.read_text(encoding="utf-8"))["regions"] == 1
+
+
+def test_a_region_whose_points_stand_apart_on_the_table_is_split() -> None:
+    """Two objects that overlap in the image (one in front of the other, from an angle) but stand
+    5 cm apart on the table are two regions with ``split_on_table``; one object stays one."""
+    from craft_e.runtime.perception.plane import Plane
+    from craft_e.runtime.perception.segment import SegmentConfig, split_on_table
+
+    plane = Plane(np.array([0.0, 0.0, -1.0]), 0.7)  # the table 0.7 m down the optical axis
+    points = np.full((H, W, 3), np.nan)
+    mask = np.zeros((H, W), bool)
+    mask[30:60, 20:80] = True  # one component in the image
+    rows, cols = np.nonzero(mask)
+    points[rows, cols] = np.stack([cols * 0.001, rows * 0.001, np.full(len(rows), 0.65)], axis=1)
+    points[30:60, 50:80, 0] += 0.05  # the right half stands 5 cm farther along the table
+    height = plane.distance(np.nan_to_num(points, nan=0.0))
+    height[~mask] = np.nan
+    config = SegmentConfig(split_on_table=True)
+    parts = split_on_table(mask, points, height, plane, config)
+    assert sorted(tuple(int(v) for v in p.box_xywh) for p in parts) == [(20, 30, 30, 30), (50, 30, 30, 30)]
+    points[30:60, 50:80, 0] -= 0.05  # together again: one object, kept as it was
+    assert split_on_table(mask, points, height, plane, config) == []
+
+
+def test_splitting_leaves_regions_that_stand_apart_in_the_image_alone() -> None:
+    from craft_e.runtime.perception.segment import SegmentConfig
+
+    rgb, depth = _frame()
+    obs, _, _ = frame_observation(rgb, depth, K, POSE)
+    plain = segment(obs)
+    split = segment(obs, SegmentConfig(split_on_table=True))
+    assert [r.box_xywh for r in split.rois] == [r.box_xywh for r in plain.rois]
+    assert all(np.array_equal(a.mask, b.mask) for a, b in zip(split.rois, plain.rois, strict=True))
+
+
+def test_a_region_inside_another_ones_hole_is_not_split_off_twice() -> None:
+    """A ring's region is filled (its hole is part of it) and may hold another region, as a skillet
+    lid's knob inside its rim. The split reads each component's own pixels, so the knob, a region
+    of its own, is not split off the ring's filled mask as a second copy (sim-dev's write/marker/0
+    had the knob twice before)."""
+    from craft_e.runtime.perception.segment import SegmentConfig
+
+    rgb = np.full((H, W, 3), 130, np.uint8)
+    depth = np.full((H, W), 0.7, np.float32)
+    depth[20:76, 30:100] = 0.68  # the ring: 2 cm high, 6 pixels wide
+    depth[26:70, 36:94] = 0.7
+    depth[41:55, 58:72] = 0.66  # the knob in its middle, on the table
+    obs, _, _ = frame_observation(rgb, depth, K, POSE)
+    plain = segment(obs)
+    assert len(plain.rois) == 2
+    assert [r.box_xywh for r in segment(obs, SegmentConfig(split_on_table=True)).rois] == [r.box_xywh for r in plain.rois]

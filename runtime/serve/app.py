@@ -682,6 +682,7 @@ def enable_perception(service: GroundingService, encoder: RobotEncoder, gripper:
     """Give ``service`` the robot's perception for ``POST /perceive``: ``encoder`` (the robot's,
     ``sim_eval.default_encoder``, in the bundle's text space, else ``ServeError``), the default
     pipeline with ``gripper``'s fingers, and its hand's boxes for the approach check."""
+    from ..frame import FRAME_SEGMENT
     from ..sim.episode import sim_configs
     from ..sim.hands import hand_spec
     from ..sim.pipeline import PipelineConfig
@@ -695,7 +696,7 @@ def enable_perception(service: GroundingService, encoder: RobotEncoder, gripper:
     except ValueError as exc:
         raise ServeError(str(exc)) from None
     service.frame_encoder = encoder
-    service.frame_config = PipelineConfig(torch_threads=threads, pick=pick, fingers=fingers)
+    service.frame_config = PipelineConfig(torch_threads=threads, pick=pick, fingers=fingers, segment=FRAME_SEGMENT)
     service.hand_boxes = hand_spec(gripper).clearance_boxes
 
 
