@@ -190,11 +190,14 @@ def test_a_region_whose_points_stand_apart_on_the_table_is_split() -> None:
     rows, cols = np.nonzero(mask)
     points[rows, cols] = np.stack([cols * 0.001, rows * 0.001, np.full(len(rows), 0.65)], axis=1)
     points[30:60, 50:80, 0] += 0.05  # the right half stands 5 cm farther along the table
+    mask[30:60, 80:86] = True  # flat pixels beside it (what the colour cue adds: a blade lying flat)
+    points[30:60, 80:86] = np.stack(np.broadcast_arrays(0.1, 0.04, 0.7), axis=-1)
     height = plane.distance(np.nan_to_num(points, nan=0.0))
     height[~mask] = np.nan
     config = SegmentConfig(split_on_table=True)
     parts = split_on_table(mask, points, height, plane, config)
-    assert sorted(tuple(int(v) for v in p.box_xywh) for p in parts) == [(20, 30, 30, 30), (50, 30, 30, 30)]
+    # the flat pixels join the part nearest them in the image
+    assert sorted(tuple(int(v) for v in p.box_xywh) for p in parts) == [(20, 30, 30, 30), (50, 30, 36, 30)]
     points[30:60, 50:80, 0] -= 0.05  # together again: one object, kept as it was
     assert split_on_table(mask, points, height, plane, config) == []
 
