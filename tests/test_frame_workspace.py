@@ -198,6 +198,9 @@ def test_a_region_whose_points_stand_apart_on_the_table_is_split() -> None:
     parts = split_on_table(mask, points, height, plane, config)
     # the flat pixels join the part nearest them in the image
     assert sorted(tuple(int(v) for v in p.box_xywh) for p in parts) == [(20, 30, 30, 30), (50, 30, 36, 30)]
+    cropped = split_on_table(mask, points, height, plane, config, (slice(25, 70), slice(10, 90)))  # a window holding it
+    assert [(p.box_xywh, p.area) for p in cropped] == [(p.box_xywh, p.area) for p in parts]
+    assert all(np.array_equal(a.mask, b.mask) for a, b in zip(cropped, parts, strict=True))
     points[30:60, 50:80, 0] -= 0.05  # together again: one object, kept as it was
     assert split_on_table(mask, points, height, plane, config) == []
 

@@ -211,16 +211,16 @@ def segment(obs: Observation, config: SegmentConfig | None = None, keep: BoolMas
         if cfg.split_on_table:
             component = np.zeros(labels.shape, dtype=bool)
             component[box] = labels[box] == index
-            rois.extend(split_on_table(component, points, height, plane, cfg) or [whole])
+            rois.extend(split_on_table(component, points, height, plane, cfg, box) or [whole])
         else:
             rois.append(whole)
     if cfg.split_on_table:  # the parts of a split region, in raster order of their first pixel too
-        rois.sort(key=lambda r: _first_pixel(r.mask))
+        rois.sort(key=_first_pixel)
     return Segmentation(rois=rois, plane=plane, height=height, foreground=foreground)
 
 
 def split_on_table(mask: BoolMask, points: npt.NDArray[np.float64], height: npt.NDArray[np.float64],
-                   plane: Plane, config: SegmentConfig) -> list[Region]:
+                   plane: Plane, config: SegmentConfig, within: tuple[slice, slice] | None = None) -> list[Region]:
     """The parts of the connected component ``mask`` when its raised pixels form clusters apart
     on the table, each with its holes filled; ``[]`` when it is one object (the caller keeps its
     region as it was). The component's own pixels, not its hole-filled mask: a hole may hold
@@ -234,7 +234,16 @@ def split_on_table(mask: BoolMask, points: npt.NDArray[np.float64], height: npt.
     component, although on the table they stand centimetres apart (on sim-dev scenes seen from 45
     degrees, 6 of 10 missed targets were merged so in an ad hoc count;
     ``benchmarks/bench_frame_views.py`` measures what the split changes).
-    An object seen whole is one cluster: its visible surfaces all lie over its own footprint."""
+    An object seen whole is one cluster: its visible surfaces all lie over its own footprint.
+
+    ``within``: a (row, column) window known to hold the whole component (its box), to which the
+    work is cropped; the same parts, without passes over the whole frame."""
+    frame_shape = mask.shape
+    if within is not None:
+        row_off, col_off = within[0].start or 0, within[1].start or 0
+        mask, points, height = mask[within], points[within], height[within]
+    else:
+        row_off = col_off = 0
     raised = mask & (height > config.height_threshold)  # NaN heights: False
     rows, cols = np.nonzero(raised)
     if len(rows) < 2 * config.min_area:  # no room for two parts
@@ -263,10 +272,11 @@ def split_on_table(mask: BoolMask, points: npt.NDArray[np.float64], height: npt.
     _, (near_r, near_c) = ndimage.distance_transform_edt(seeds == 0, return_indices=True)
     owner = np.where(mask[r0:r1, c0:c1], seeds[near_r, near_c], 0)
     parts = []
+    window = (slice(row_off + r0, row_off + r1), slice(col_off + c0, col_off + c1))  # in the frame
     for n in range(1, len(kept) + 1):
-        part = np.zeros(mask.shape, dtype=bool)
-        part[r0:r1, c0:c1] = fill_holes(np.pad(owner == n, 1))[1:-1, 1:-1]
-        parts.append(roi_from_mask(part, within=(slice(r0, r1), slice(c0, c1))))
+        part = np.zeros(frame_shape, dtype=bool)
+        part[window] = fill_holes(np.pad(owner == n, 1))[1:-1, 1:-1]
+        parts.append(roi_from_mask(part, within=window))
     return parts
 
 
@@ -278,9 +288,11 @@ def _plane_axes(normal: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64
     return first, np.cross(normal, first)
 
 
-def _first_pixel(mask: BoolMask) -> int:
-    """The raster index of the mask's first pixel."""
-    return int(np.flatnonzero(mask.ravel())[0])
+def _first_pixel(region: Region) -> int:
+    """The raster index of the region's first pixel: the first set pixel of its box's top row."""
+    top = int(region.box_xywh[1])
+    width = int(region.mask.shape[1])
+    return top * width + int(np.argmax(region.mask[top]))
 
 
 def _filled(
