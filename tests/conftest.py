@@ -25,6 +25,7 @@ import pytest
 if TYPE_CHECKING:
     from craft_e.compiler.build import BuildConfig
     from craft_e.compiler.sources.llm import LLMSource
+    from craft_e.runtime.evaluation.sim_eval import EpisodeSpec
     from craft_e.runtime.sim.gripper import GripperConfig
     from craft_e.runtime.sim.robot import CR3Robot
 
@@ -199,6 +200,21 @@ def bare_robot() -> Iterator[Callable[..., CR3Robot]]:
     finally:
         for client in clients:
             p.disconnect(physicsClientId=client)
+
+
+def episode_spec(labels_path: Path, episode_id: str, seed: int = 0) -> EpisodeSpec:
+    """One episode of a sim labels file by its id (``verb/object/layout``), built alone: its pair
+    only, its layout only (``make_episode_specs(only_layout=)``), the same scene the full run builds."""
+    import dataclasses
+
+    from craft_e.runtime.evaluation.sim_eval import load_sim_labels, make_episode_specs
+
+    verb, obj, layout = episode_id.rsplit("/", 2)
+    labels = load_sim_labels(labels_path)
+    pairs = tuple(p for p in labels.pairs if (p.verb, p.object) == (verb, obj))
+    (spec,) = make_episode_specs(dataclasses.replace(labels, pairs=pairs), seed=seed, only_layout=int(layout))
+    assert spec.id == episode_id, spec.id
+    return spec
 
 
 def load_script(path: Path) -> ModuleType:

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import episode_spec
 from typer.testing import CliRunner
 
 from craft_e.paths import KB_DIR, SIM_DEV_LABELS, VOCAB_DIR
@@ -320,8 +321,6 @@ def test_a_frame_moves_a_blocked_grasp_as_the_testbed_robot_does() -> None:
     the grasp to the same spot (the testbed's also plans the arm, which this frame cannot)."""
     from craft_e.runtime.evaluation.sim_eval import (
         default_encoder,
-        load_sim_labels,
-        make_episode_specs,
     )
     from craft_e.runtime.frame import FramePerceiver
     from craft_e.runtime.kb.bundle import load_bundle
@@ -335,10 +334,7 @@ def test_a_frame_moves_a_blocked_grasp_as_the_testbed_robot_does() -> None:
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.pipeline import PipelineConfig, sim_vocabulary
 
-    labels = load_sim_labels(SIM_DEV_LABELS)
-    pairs = tuple(p for p in labels.pairs if (p.verb, p.object) == ("eat", "peach"))
-    spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
-                if s.id == "eat/peach/1")
+    spec = episode_spec(SIM_DEV_LABELS, "eat/peach/1")
     perceiver = FramePerceiver(load_bundle(KB_DIR / "craft-e-default"), vocabulary=sim_vocabulary())
     config = PipelineConfig(rgb_scale=1)
     with SimEnv() as env:

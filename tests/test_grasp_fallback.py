@@ -10,13 +10,12 @@ the same grasps as the sampler on the whole frame though it runs on a crop.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import pytest
-from conftest import load_script
+from conftest import episode_spec, load_script
 
 from craft_e.runtime.grasp.antipodal import AntipodalConfig, sample_antipodal_grasps
 from craft_e.runtime.grasp.geometry import CameraIntrinsics, Grasp2D, TopDownGrasp
@@ -134,16 +133,11 @@ def test_in_a_dev_scene_both_paths_give_the_dice_the_same_fallback_grasp() -> No
     from craft_e.paths import SIM_DEV_LABELS
     from craft_e.runtime.evaluation.sim_eval import (
         default_encoder,
-        load_sim_labels,
-        make_episode_specs,
     )
     from craft_e.runtime.sim.choose import perceive_for_pick
     from craft_e.runtime.sim.env import SimEnv
 
-    labels = load_sim_labels(SIM_DEV_LABELS)  # the scene depends on the whole file; placing only the pair's is quick
-    pairs = tuple(pair for pair in labels.pairs if (pair.verb, pair.object) == ("pour", "cup"))
-    spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
-                if s.id == "pour/cup/2")
+    spec = episode_spec(SIM_DEV_LABELS, "pour/cup/2")
     config = pipeline.PipelineConfig()
     encoder = default_encoder(1)
     with SimEnv() as env:
@@ -177,15 +171,10 @@ def test_the_fallback_leaves_the_finger_checks_clearance_so_the_sponge_gets_a_gr
     from craft_e.paths import SIM_VAL_LABELS
     from craft_e.runtime.evaluation.sim_eval import (
         default_encoder,
-        load_sim_labels,
-        make_episode_specs,
     )
     from craft_e.runtime.sim.env import SimEnv
 
-    labels = load_sim_labels(SIM_VAL_LABELS)
-    pairs = tuple(pair for pair in labels.pairs if (pair.verb, pair.object) == ("clean", "sponge"))
-    spec = next(s for s in make_episode_specs(dataclasses.replace(labels, pairs=pairs), layouts=3)
-                if s.id == "clean/sponge/1")
+    spec = episode_spec(SIM_VAL_LABELS, "clean/sponge/1")
     encoder = default_encoder(1)
     found: dict[str, list[candidates.GraspCandidate]] = {}
     with SimEnv() as env:

@@ -8,6 +8,7 @@ import re
 
 import pybullet as p
 import pytest
+from conftest import episode_spec
 
 from craft_e.runtime.sim.episode import PickConfig
 
@@ -29,10 +30,7 @@ def test_a_sponge_wedged_in_the_open_hand_is_set_down_in_the_zone() -> None:
     down, turns and lets it go. Same grasp, same scene, both ways."""
     from craft_e.paths import SIM_DEV_LABELS
     from craft_e.runtime.evaluation.sim_eval import (
-        SimLabels,
         default_encoder,
-        load_sim_labels,
-        make_episode_specs,
     )
     from craft_e.runtime.sim.env import SimEnv
     from craft_e.runtime.sim.episode import Outcome, execute_pick
@@ -40,10 +38,7 @@ def test_a_sponge_wedged_in_the_open_hand_is_set_down_in_the_zone() -> None:
     from craft_e.runtime.sim.pipeline import PipelineConfig, relocated_grasp
     from craft_e.runtime.sim.surface import object_centre
 
-    labels = load_sim_labels(SIM_DEV_LABELS)
-    pair = next(x for x in labels.pairs if (x.verb, x.object) == ("wipe", "sponge"))
-    spec = make_episode_specs(SimLabels(labels.path, (pair,), labels.affording), layouts=3, seed=1)[2]
-    assert spec.id == "wipe/sponge/2"
+    spec = episode_spec(SIM_DEV_LABELS, "wipe/sponge/2", seed=1)
     config = PipelineConfig()
     with SimEnv() as env:
         env.reset(spec.scene)
