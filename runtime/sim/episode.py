@@ -95,6 +95,11 @@ class PickConfig:
     # distractors (cut/knife/0: the hand hit a box on the way to the zone, the knife fell).
     clear_obstacles: bool = True
     obstacle_margin: float = 0.03
+    # The hand's gentle grip (``HandSpec.gentle_force``) for an object whose longest edge, as the
+    # depth camera saw it, is under this (m): the full force squeezed small light objects (the
+    # 6 g sponge, by its rounded ends; a stack of 13 g cups) out from between the pads. None:
+    # the full force for every object (every result before 2026-12-07, session 41).
+    gentle_below: float | None = 0.15
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.unjam_turn_deg < 90.0:
@@ -490,11 +495,14 @@ def execute_pick(
     target_body: int,
     config: PickConfig | None = None,
     object_xy: tuple[float, float] | None = None,
+    object_size: float | None = None,
 ) -> PickResult:
     """Run the pick in ``env``'s current scene and classify what happened.
 
     ``object_xy``: the object's centre on the table as the robot saw it (``object_centre``);
-    given, the release puts it, not the TCP, over the drop zone's centre when reachable."""
+    given, the release puts it, not the TCP, over the drop zone's centre when reachable.
+    ``object_size``: the object's longest edge as the robot saw it (m); under
+    ``PickConfig.gentle_below``, the hand closes gently (``HandSpec.gentle_force``)."""
     cfg = config or PickConfig()
     robot, scene = env.robot, env.scene
     progress = _Progress(env, target_body, env.steps, _body_z(scene, target_body))
@@ -511,7 +519,8 @@ def execute_pick(
     plan = _look_and_replan(env, grasp, plan, cfg, progress, rise, object_xy)
     robot.follow([s.q for s in plan.descent])
     progress.measure_descent(plan.grasp_z)
-    robot.gripper.close()
+    robot.gripper.close(gentle=cfg.gentle_below is not None and object_size is not None
+                        and object_size < cfg.gentle_below)
     pinched = robot.gripper.check_grasp(ignore)
     if pinched is None:
         return progress.finish(Outcome.MISSED, None, "fingers closed on nothing")

@@ -67,6 +67,10 @@ class HandSpec:
     tcp_offset: float  # m from the base link origin to the TCP along the approach axis
     force: float  # default motor effort (N per prismatic finger, N·m per linkage joint)
     max_speed: float  # m/s per prismatic finger or rad/s on the linkage's driven joint
+    # The effort of a gentle grip (``ParallelGripper.close(gentle=True)``, for small objects:
+    # ``PickConfig.gentle_below``), in ``force``'s unit; None: the hand has none (its squeeze is
+    # not set by its effort, as the Robotiq's is not: ``GripperConfig``).
+    gentle_force: float | None = None
     pad_lateral_friction: float = 1.5  # rubber-like; pybullet multiplies with the object's
     # Torsional friction about the contact normal, i.e. about the pinch axis: what keeps a long
     # object pinched off-centre from swinging down. pybullet multiplies it with the object's
@@ -134,6 +138,11 @@ PANDA = HandSpec(
     tcp_offset=0.1034,
     force=40.0,  # N per finger; above the rated 20 N so heavy bottles do not slip
     max_speed=0.2,
+    # 20 N on objects under 15 cm: at 40 N pybullet squeezed the 6 g sponge out from between
+    # the pads by its rounded ends (not a real sponge's behaviour: at 50 g, or at 20 N, the
+    # same grasps hold); at 20 N for every object, plates and lids held by the rim and a tall
+    # bottle were lost (docs/results/sim_execution.md, "A gentler grip on small objects")
+    gentle_force=20.0,
     clearance_boxes=(
         HandBox(0.036, -0.106, 0.106, 0.033, 0.133),  # the hand's body, 21 cm along the closing axis
         HandBox(0.014, 0.036, 0.070, -0.013, 0.049, mirrored=True),  # open fingers

@@ -262,6 +262,11 @@ def chosen_region(
     return roi, detect, chosen.grasp if isinstance(chosen.grasp, GraspCandidate) else None
 
 
+def longest_edge(roi: PerceivedROI) -> float | None:
+    """The region's longest edge as the depth camera measured it (m; ``PickConfig.gentle_below``)."""
+    return None if roi.extents_m is None else float(roi.extents_m[0])
+
+
 def not_detected(perception: ScenePerception) -> Failure:
     """Why the target was not chosen when grounding chose another region or none: no region
     for it, no usable grasp on it, or a wrong choice."""
@@ -338,7 +343,7 @@ def run_episode(
                     before_pick(name)
                 picks[chosen.index] = execute_pick(
                     env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick,
-                    object_centre(perception.raised, roi.roi.mask),
+                    object_centre(perception.raised, roi.roi.mask), longest_edge(roi),
                 )
                 if retrying and hand_empty(picks[chosen.index]):
                     after_pick[chosen.index] = int(p.saveState(physicsClientId=env.client))
@@ -441,7 +446,7 @@ def retry_picks(
             break
         pose = grasp.pose if grasp is not None else None
         pick = execute_pick(env, pose, perception.target_body, config.pick,
-                            object_centre(perception.raised, roi.roi.mask))
+                            object_centre(perception.raised, roi.roi.mask), longest_edge(roi))
         quality = grasp.quality if grasp is not None else None
         attempts.append(Attempt(chosen.index, True, PICK_FAILURES[pick.outcome].value, pick.detail, quality))
         if not hand_empty(pick) or pose is None:
