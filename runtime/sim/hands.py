@@ -141,7 +141,7 @@ PANDA = HandSpec(
     # 20 N on objects under 15 cm: at 40 N pybullet squeezed the 6 g sponge out from between
     # the pads by its rounded ends (not a real sponge's behaviour: at 50 g, or at 20 N, the
     # same grasps hold); at 20 N for every object, plates and lids held by the rim and a tall
-    # bottle were lost (docs/results/sim_execution.md, "A gentler grip on small objects")
+    # bottle were lost (docs/results/sim_execution.md, "A gentle grip on small objects")
     gentle_force=20.0,
     clearance_boxes=(
         HandBox(0.036, -0.106, 0.106, 0.033, 0.133),  # the hand's body, 21 cm along the closing axis
