@@ -279,6 +279,14 @@ def encode_with_classes(encoder: Any, crops: Sequence[UInt8Image]) -> tuple[Floa
     return np.asarray(embed(probs), dtype=np.float32), classes
 
 
+def check_crop(preprocess: str, tta: int) -> None:
+    """ValueError unless ``preprocess`` and ``tta`` name a crop ``ConSEImageEncoder`` makes."""
+    if preprocess not in PREPROCESS:
+        raise ValueError(f"preprocess must be one of {', '.join(PREPROCESS)}, got {preprocess!r}")
+    if tta not in (1, 2):
+        raise ValueError(f"tta must be 1 (none) or 2 (+ mirror image), got {tta}")
+
+
 class ConSEImageEncoder:
     """EfficientNet-Lite (``classifier``) + MiniLM class names -> ``[N, 384]`` image embeddings (ConSE).
 
@@ -315,10 +323,7 @@ class ConSEImageEncoder:
 
         if top_k < 1:
             raise ValueError(f"top_k must be >= 1, got {top_k}")
-        if preprocess not in PREPROCESS:
-            raise ValueError(f"preprocess must be one of {', '.join(PREPROCESS)}, got {preprocess!r}")
-        if tta not in (1, 2):
-            raise ValueError(f"tta must be 1 (none) or 2 (+ mirror image), got {tta}")
+        check_crop(preprocess, tta)
         self.top_k = top_k
         self.preprocess = preprocess
         self.tta = tta
@@ -354,10 +359,7 @@ class ConSEImageEncoder:
         whole square crops (``fit``) holds one classifier and one table of class names, not
         two. Its ``id`` is what ``ConSEImageEncoder(preprocess=..., tta=...)`` with the other
         settings equal would give."""
-        if preprocess not in PREPROCESS:
-            raise ValueError(f"preprocess must be one of {', '.join(PREPROCESS)}, got {preprocess!r}")
-        if tta not in (1, 2):
-            raise ValueError(f"tta must be 1 (none) or 2 (+ mirror image), got {tta}")
+        check_crop(preprocess, tta)
         if (preprocess, tta) == (self.preprocess, self.tta):
             return self
         fused = self._fused_twin is self  # this encoder is a fused twin: so is the new one

@@ -89,7 +89,6 @@ class ParallelGripper:
         self.right_links = [self._link(joints, n) for n in hand.right_links]
         self.pads = (self._link(joints, hand.left_pad), self._link(joints, hand.right_pad))
         self.force = self.config.force if self.config.force is not None else hand.force
-        self.gentle_force = hand.gentle_force
         self.max_speed = self.config.max_speed if self.config.max_speed is not None else hand.max_speed
         self._mimics = [(joints[m.joint], joints[m.driver], m.multiplier) for m in hand.mimics]
         self._couple()
@@ -167,7 +166,7 @@ class ParallelGripper:
         """Close until blocked; the target stays at the closed limit so the force keeps squeezing.
         ``gentle``: with the hand's gentle force (``HandSpec.gentle_force``) until it opens, where
         it has one."""
-        self._command(self.hand.closed_q, self.gentle_force if gentle else None)
+        self._command(self.hand.closed_q, self.hand.gentle_force if gentle else None)
         self._step(self.config.close_steps)
 
     def width(self) -> float:
