@@ -187,7 +187,7 @@ def test_every_command_is_wired_and_answers_help() -> None:
     assert parse_box(" 1, 2,3,4 ") == (1.0, 2.0, 3.0, 4.0)
     expected = {"ground", "perceive", "install", "rollback", "installed", "serve",
                 "eval/imagenet", "eval/sim", "eval/static", "eval/zhu", "eval/kb", "eval/open-world", "eval/recognition",
-                "eval/pickability",
+                "eval/pickability", "eval/compare",
                 "eval/robustness/imagenet", "sim/demo", "sim/collision-meshes"}
     assert _commands(app) == expected
     for path in expected:

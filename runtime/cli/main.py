@@ -18,6 +18,7 @@ import typer
 
 from ...signals import exit_through_python_on_sigterm
 from . import (
+    eval_compare,
     eval_imagenet,
     eval_kb,
     eval_open_world,
@@ -57,6 +58,7 @@ eval_app.command("kb")(eval_kb.eval_kb)
 eval_app.command("open-world")(eval_open_world.eval_open_world)
 eval_app.command("recognition")(eval_recognition.eval_recognition)
 eval_app.command("pickability")(eval_pickability.eval_pickability)
+eval_app.command("compare")(eval_compare.eval_compare)
 robustness_app.command("imagenet")(robustness.robustness_imagenet)
 sim_app.command("demo")(sim.demo)
 sim_app.command("collision-meshes")(sim.collision_meshes)
