@@ -72,6 +72,10 @@ DEFAULT_CLASS_SENSE_WEIGHT = 0.5
 #: ConSE; 2 chosen on the dev renders, the sim-dev scenes and the ImageNet dev labels.
 DEFAULT_CONSE_TEMPERATURE = 2.0
 PREPROCESS = ("center", "fit")
+#: How the robot reads its ROI crops: whole and square, context included (``fit``; chosen on
+#: ``craft eval recognition``, docs/recognition.md). The testbed's encoder
+#: (``sim_eval.default_encoder``) and ``craft serve``'s ``POST /perceive`` both read it here.
+ROBOT_PREPROCESS = "fit"
 
 
 @cache

@@ -327,16 +327,16 @@ def make_episode_specs(
 def default_encoder(threads: int = 1, classifier: str | None = None,
                     sense_weight: float | None = None, temperature: float | None = None) -> ImageEncoder:
     """The ConSE image encoder with a fixed torch thread count, on whole square ROI crops
-    (``preprocess="fit"``; chosen on ``craft eval recognition``, docs/recognition.md).
+    (``conse.ROBOT_PREPROCESS``, "fit"; chosen on ``craft eval recognition``, docs/recognition.md).
     ``classifier``: its ImageNet classifier (None: the default, EfficientNet-Lite1;
     ``efficientnet-lite0`` reproduces runs from before 2026-12-04). ``sense_weight``: how its
     class names are read (``GroundingSettings.class_senses``, so that the grounders' hubness
     reference is the same; None: the default). ``temperature``: the classifier's softmax
     temperature for ConSE's weights (``GroundingSettings.conse_temperature``; None: the default)."""
-    from ..encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ROBOT_PREPROCESS, ConSEImageEncoder
 
-    return ConSEImageEncoder(threads=threads, preprocess="fit", classifier=classifier, sense_weight=sense_weight,
-                             temperature=temperature)
+    return ConSEImageEncoder(threads=threads, preprocess=ROBOT_PREPROCESS, classifier=classifier,
+                             sense_weight=sense_weight, temperature=temperature)
 
 
 def text_space(encoder: ImageEncoder | None) -> str:

@@ -995,8 +995,8 @@ def robot_encoder(encoder: ImageEncoder | None) -> RobotEncoder | None:
     an image encoder (``/perceive`` then answers 503, as ``/ground_image`` does)."""
     if encoder is None:
         return None
-    from ..encoders.conse import ConSEImageEncoder
+    from ..encoders.conse import ROBOT_PREPROCESS, ConSEImageEncoder
 
     if not isinstance(encoder, ConSEImageEncoder):
         raise ServeError(f"POST /perceive reads the robot's ConSE encoder; {encoder.id} is not one")
-    return encoder.with_preprocess("fit")
+    return encoder.with_preprocess(ROBOT_PREPROCESS)
