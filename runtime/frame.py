@@ -269,7 +269,18 @@ def frame_observation(
     cam_to_world: npt.ArrayLike | None = None, config: SegmentConfig | None = None,
 ) -> tuple[Observation, float, bool]:
     """(the frame, the table's height in its world frame, whether that frame was made from the
-    table plane). Depth is metres along the optical axis; 0, NaN and negative values are no
+    table plane): ``observe_frame`` without the plane."""
+    obs, table_z, from_table, _ = observe_frame(rgb, depth, intrinsics, cam_to_world, config)
+    return obs, table_z, from_table
+
+
+def observe_frame(
+    rgb: npt.NDArray[np.uint8], depth: npt.NDArray[np.floating], intrinsics: CameraIntrinsics,
+    cam_to_world: npt.ArrayLike | None = None, config: SegmentConfig | None = None,
+) -> tuple[Observation, float, bool, Plane]:
+    """(the frame, the table's height in its world frame, whether that frame was made from the
+    table plane, that plane in the camera frame: segmentation reads it rather than fitting it
+    again). Depth is metres along the optical axis; 0, NaN and negative values are no
     reading. With ``cam_to_world`` the table's height is the mean world height of the plane's
     inliers.
 
@@ -326,7 +337,7 @@ def frame_observation(
                          f"readings (at least {MIN_TABLE_SHARE:.0%} expected): the camera must see the table as "
                          "the largest flat surface, with depth in metres registered to the colour image")
     if pose is None:
-        return Observation(colour, metres, intrinsics, pose_from_plane(plane)), 0.0, True
+        return Observation(colour, metres, intrinsics, pose_from_plane(plane)), 0.0, True, plane
     up = float(pose[:3, :3] @ np.asarray(plane.normal, dtype=np.float64) @ np.array([0.0, 0.0, 1.0]))
     tilt = math.degrees(math.acos(max(-1.0, min(1.0, up))))
     if tilt > MAX_TABLE_TILT_DEG:
@@ -338,7 +349,7 @@ def frame_observation(
     heights = obs.world_z()[on_table]
     if heights.size == 0:
         raise FrameError("no pixel lies on the table plane")
-    return obs, float(np.mean(heights)), False
+    return obs, float(np.mean(heights)), False, plane
 
 
 def frame_keep(
@@ -426,9 +437,10 @@ def perceive(
     if config.grasp == "oracle" or config.rois == "oracle":
         raise FrameError("a frame has no ground truth: use predicted ROIs and a grasp backend", "config")
     cfg = replace(config, rgb_scale=1, ik_filter=False)
-    obs, table_z, from_table = frame_observation(rgb, depth, intrinsics, cam_to_world, cfg.segment)
+    obs, table_z, from_table, plane = observe_frame(rgb, depth, intrinsics, cam_to_world, cfg.segment)
     keep = frame_keep(obs, from_table, mask, workspace)
-    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=colours, cavity=cavity, keep=keep)
+    rois = perceive_frame(obs, obs.rgb, table_z, encoder, cfg, colours=colours, cavity=cavity, keep=keep,
+                          plane=plane)
     return PerceivedFrame(obs, table_z, from_table, rois, cfg)
 
 

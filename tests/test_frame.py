@@ -117,6 +117,30 @@ def test_a_testbed_frame_is_perceived_and_grounded_as_the_robot_does(
             assert found.grasp is not None and found.grasp.rect == reference.grasp.rect
 
 
+def test_a_frame_fits_its_table_plane_once(
+    testbed_frames: list[tuple[str, Observation, list[Any]]], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The frame's check (``observe_frame``) fits the table plane and segmentation reads that
+    plane rather than fitting it again: one RANSAC fit per frame, the regions those of a fresh fit."""
+    from craft_e.runtime.evaluation.sim_eval import default_encoder
+    from craft_e.runtime.frame import perceive
+    from craft_e.runtime.perception import segment as segment_module
+    from craft_e.runtime.sim.pipeline import PipelineConfig
+
+    verb, obs, (_, lazy) = testbed_frames[0]
+    fits: list[int] = []
+    real_fit = segment_module.fit_plane
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        fits.append(1)
+        return real_fit(*args, **kwargs)
+
+    monkeypatch.setattr(segment_module, "fit_plane", counted)
+    frame = perceive(default_encoder(1), PipelineConfig(), obs.rgb, obs.depth, obs.intrinsics, obs.cam_to_world)
+    assert len(fits) == 1
+    assert [r.box_xywh for r in frame.rois] == [r.box_xywh for r in lazy]
+
+
 def test_craft_perceive_reads_a_saved_frame_and_writes_the_choice(
     testbed_frames: list[tuple[str, Observation, list[Any]]], tmp_path: Path,
 ) -> None:

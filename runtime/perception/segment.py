@@ -178,13 +178,16 @@ def open_3x3(mask: BoolMask) -> BoolMask:
     return out
 
 
-def segment(obs: Observation, config: SegmentConfig | None = None, keep: BoolMask | None = None) -> Segmentation:
+def segment(obs: Observation, config: SegmentConfig | None = None, keep: BoolMask | None = None,
+            plane: Plane | None = None) -> Segmentation:
     """ROIs of everything standing on the table, in raster order of their first pixel; with
     ``keep`` (H x W), only of its pixels (a robot's workspace: ``perception/workspace.py``). The
-    table plane is fitted to the whole frame either way."""
+    table plane is fitted to the whole frame either way, unless the caller has fitted it already
+    (``plane``: ``table_plane(obs, config)``, in the camera frame; a camera's frame is checked
+    against its plane before it is perceived, ``frame.frame_observation``)."""
     cfg = config or SegmentConfig()
     points = obs.points_camera()  # [H, W, 3], once for the plane fit and the heights
-    plane = table_plane(obs, cfg, points)
+    plane = plane if plane is not None else table_plane(obs, cfg, points)
     height = plane.distance(points)  # [H, W], NaN where depth is invalid
     # a comparison with NaN is False, so pixels without depth are in none of these masks
     above = height > cfg.height_threshold

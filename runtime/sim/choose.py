@@ -40,6 +40,7 @@ if TYPE_CHECKING:
     from ..encoders.image import ImageEncoder
     from ..grasp.geometry import TopDownGrasp
     from ..perception.observation import Observation
+    from ..perception.plane import Plane
     from ..perception.roi import Region
     from .candidates import GraspCandidate
     from .env import SimEnv
@@ -174,7 +175,7 @@ def perceive_for_pick(
 def perceive_frame(
     obs: Observation, sharp: npt.NDArray[np.uint8], table_z: float, encoder: ImageEncoder,
     config: PipelineConfig, *, timings: dict[str, float] | None = None, colours: bool = False,
-    cavity: bool = False, keep: npt.NDArray[np.bool_] | None = None,
+    cavity: bool = False, keep: npt.NDArray[np.bool_] | None = None, plane: Plane | None = None,
 ) -> list[LazyROI]:
     """What the robot computes before grounding: ROIs, one grasp-network pass, the crops'
     embeddings, and the finger check of every candidate (cheap, vectorised over the ROI's depth
@@ -191,7 +192,8 @@ def perceive_frame(
     evaluation's path, keeps the checkpoints' layer layout so published results reproduce.
     ``colours``: measure each ROI's colour shares (for a grounder with the opt-in colour cue);
     ``cavity``: each ROI's open cavity (the opt-in cavity cue's). ``keep``: the pixels where
-    regions may be (``segment``'s; a real robot's workspace, ``frame.frame_keep``).
+    regions may be (``segment``'s; a real robot's workspace, ``frame.frame_keep``). ``plane``: the
+    frame's table plane if already fitted (``segment``'s; ``frame.perceive`` fits it to check the frame).
     Sets this process's numpy BLAS to one thread (``runtime/blas.py``: its spinning threads
     slow torch)."""
     from ..blas import single_threaded_blas
@@ -216,7 +218,7 @@ def perceive_frame(
                          "times a whole number, with 3 channels")
     single_threaded_blas()
     with timed_stage(timings, "segment"):
-        rois = segment(obs, config.segment, keep).rois
+        rois = segment(obs, config.segment, keep, plane).rois
     fast_encoder = inference_encoder(encoder)
     with torch_threads(config.torch_threads):
         with timed_stage(timings, "grasp_net"):
