@@ -127,7 +127,7 @@ def test_a_frame_fits_its_table_plane_once(
     from craft_e.runtime.perception import segment as segment_module
     from craft_e.runtime.sim.pipeline import PipelineConfig
 
-    verb, obs, (_, lazy) = testbed_frames[0]
+    _, obs, (_, lazy) = testbed_frames[0]
     fits: list[int] = []
     real_fit = segment_module.fit_plane
 
