@@ -4,7 +4,9 @@
 episode of a labels file (the same scenes ``craft eval sim`` builds), the ROIs are the
 simulator's masks (``rois=oracle``), the target's ROI is taken as chosen, and its best usable
 grasp (GR-ConvNet by default, with the grasp checks) is executed, released with the ROI's seen
-centre over the drop zone as in ``craft eval sim``. Outcomes are counted as in
+centre over the drop zone and closed with the hand's gentle grip on an object the depth camera
+measures small, as in ``craft eval sim`` (the grip by size since session 42; before it this
+benchmark closed every hand at its full force). Outcomes are counted as in
 ``craft eval sim`` (``no_grasp`` when the target's ROI has no usable grasp).
 
 Run: ``.venv/bin/python benchmarks/bench_execution.py --labels artifacts/labels/sim_dev_labels.csv
@@ -26,7 +28,7 @@ from craft_e.runtime.evaluation.sim_eval import default_encoder, load_sim_labels
 from craft_e.runtime.sim.env import EnvConfig, SimEnv
 from craft_e.runtime.sim.episode import execute_pick
 from craft_e.runtime.sim.perceive import perceive
-from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart
+from craft_e.runtime.sim.pipeline import PipelineConfig, SavedStart, longest_edge
 from craft_e.runtime.sim.surface import object_centre
 
 
@@ -59,7 +61,8 @@ def run(
                     start.restore()
                     assert index is not None
                     centre = object_centre(perception.raised, perception.rois[index].roi.mask)
-                    result = execute_pick(env, usable[0].pose, perception.target_body, config.pick, centre)
+                    result = execute_pick(env, usable[0].pose, perception.target_body, config.pick, centre,
+                                          longest_edge(perception.rois[index]))
                     outcome, detail = result.outcome.value, result.detail
             finally:
                 start.release()
