@@ -184,7 +184,7 @@ def segment(obs: Observation, config: SegmentConfig | None = None, keep: BoolMas
     ``keep`` (H x W), only of its pixels (a robot's workspace: ``perception/workspace.py``). The
     table plane is fitted to the whole frame either way, unless the caller has fitted it already
     (``plane``: ``table_plane(obs, config)``, in the camera frame; a camera's frame is checked
-    against its plane before it is perceived, ``frame.frame_observation``)."""
+    against its plane before it is perceived, ``frame.observe_frame``)."""
     cfg = config or SegmentConfig()
     points = obs.points_camera()  # [H, W, 3], once for the plane fit and the heights
     plane = plane if plane is not None else table_plane(obs, cfg, points)
