@@ -200,9 +200,12 @@ def test_cli_writes_the_paper_table_as_json(first_run: dict[str, Any]) -> None:
     check_report(first_run)
     assert first_run["config"]["episodes"] == 1 and len(first_run["episodes"]) == 1
     assert first_run["episodes"][0]["target"] == "knife"
-    # the pick settings the run was measured at (finger tips above the table, clearance margin)
-    assert (first_run["config"]["table_clearance_m"], first_run["config"]["clearance_margin_m"]) == (0.002, -0.002)
-    assert first_run["config"]["pipeline"]["grasp_fallback"] is True
+    # the pick settings the run was measured at (finger tips above the table, clearance margin,
+    # the gentle grip's size limit, the fallback's centres on thin parts)
+    config = first_run["config"]
+    assert (config["table_clearance_m"], config["clearance_margin_m"], config["gentle_below_m"]) == (0.002, -0.002, 0.15)
+    assert config["pipeline"]["grasp_fallback"] is True
+    assert config["pipeline"]["fallback_thin_centres"] == 32
 
 
 def test_classifier_option_reproduces_the_lite0_encoder(run_dir: Path, first_run: dict[str, Any]) -> None:

@@ -10,6 +10,7 @@ the same grasps as the sampler on the whole frame though it runs on a crop.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import numpy as np
@@ -53,9 +54,45 @@ def test_a_dice_gets_grasps_best_first() -> None:
         FallbackConfig(quality_scale=0.0)
 
 
+def mug_scene(handle: bool = True) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_], tuple[int, int, int, int]]:
+    """Depth of a 10 cm wide round body (wider than the hand opens) with, on its right, a handle
+    2 cm wide that stands out 4 cm: the mug or pitcher seen from above. Its mask and box."""
+    depth = np.full((INTR.height, INTR.width), TABLE_DEPTH, np.float32)
+    px = INTR.fx / TABLE_DEPTH  # pixels per metre at the table
+    cx, cy = 300, 240
+    vv, uu = np.mgrid[0:INTR.height, 0:INTR.width]
+    radius = 0.05 * px
+    depth[(uu - cx) ** 2 + (vv - cy) ** 2 <= radius ** 2] = TABLE_DEPTH - 0.10
+    if handle:
+        depth[(abs(vv - cy) <= 0.01 * px) & (uu > cx) & (uu <= cx + radius + 0.04 * px)] = TABLE_DEPTH - 0.09
+    mask = depth < TABLE_DEPTH - 0.005
+    ys, xs = np.nonzero(mask)
+    return depth, mask, (int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
+
+
+def test_a_handle_on_a_body_too_wide_for_the_hand_gets_a_grasp() -> None:
+    """The sampler's centres gather where the region is deepest (the body); without the centres on
+    its thin parts the handle, the only part the fingers fit around, got none (the pitcher's and a
+    mug's ``no_grasp`` on sim-dev). With them the grasps lie on the handle, across it."""
+    depth, mask, box = mug_scene()
+    kwargs = {"max_opening_m": 0.08, "min_clearance_m": 0.003, "max_grasps": 5}
+    assert fallback_grasps(depth, mask, box, INTR, config=FallbackConfig(thin_centres=0), **kwargs) == []  # type: ignore[arg-type]
+    found = fallback_grasps(depth, mask, box, INTR, config=FallbackConfig(), **kwargs)  # type: ignore[arg-type]
+    assert found
+    px = INTR.fx / TABLE_DEPTH
+    for g in found:
+        x, y = g.center_xy
+        assert x > 300 + 0.05 * px and abs(y - 240) <= 0.01 * px + 1  # on the handle, beyond the body
+        assert abs(math.cos(g.angle_rad)) < 0.5  # closing across the handle (vertical in the image)
+    assert fallback_grasps(*mug_scene(handle=False), INTR, config=FallbackConfig(), **kwargs) == []  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="thin_centres"):
+        FallbackConfig(thin_centres=-1)
+
+
 def test_the_crop_gives_the_whole_frames_grasps() -> None:
     depth, mask, box = dice_scene(0.04, centre=(150, 120))
-    whole = sample_antipodal_grasps(depth, mask, INTR, 5, AntipodalConfig(max_opening_m=0.08))
+    whole = sample_antipodal_grasps(depth, mask, INTR, 5,
+                                    AntipodalConfig(max_opening_m=0.08, n_thin_centres=FallbackConfig().thin_centres))
     cropped = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, min_clearance_m=0.005, max_grasps=5, config=FallbackConfig())
     assert whole and len(cropped) == len(whole)
     for c, w in zip(cropped, whole, strict=True):
@@ -202,3 +239,18 @@ def test_bench_pick_settings_reads_the_fallback_setting() -> None:
     for bad in ("0.002", "0.002,-0.002,0", "0.002,-0.002,maybe", "a,b"):
         with pytest.raises(argparse.ArgumentTypeError, match="TABLE_CLEARANCE"):
             bench.parse_setting(bad)
+
+
+def test_the_commands_default_is_the_fallbacks_and_zero_turns_the_thin_centres_off() -> None:
+    """``--fallback-thin-centres`` (``eval sim``, ``eval pickability``, ``sim demo``) defaults to
+    ``FallbackConfig``'s own value, written out in the CLI so that ``--help`` starts without numpy;
+    0 gives the fallback of every run before 2026-12-07 (session 43)."""
+    import inspect
+
+    from craft_e.runtime.cli import episodes, eval_pickability, eval_sim, sim
+
+    for command in (eval_sim.eval_sim, eval_pickability.eval_pickability, sim.demo):
+        assert inspect.signature(command).parameters["fallback_thin_centres"].default == FallbackConfig().thin_centres
+    args = ("grconvnet", "predicted", 1, "panda", True, False, True, True, True, True, True)
+    assert episodes.pick_pipeline(*args)[1].fallback == FallbackConfig()
+    assert episodes.pick_pipeline(*args, fallback_thin_centres=0)[1].fallback.thin_centres == 0

@@ -58,6 +58,9 @@ RefineGraspsOpt = Annotated[bool, typer.Option(help="Turn a network grasp the ha
 GraspFallbackOpt = Annotated[bool, typer.Option(help="Give a region whose network grasps the fingers fit "
                                                      "around none of the antipodal sampler's grasps, checked "
                                                      "the same way (sim/fallback.py).")]
+FallbackThinCentresOpt = Annotated[int, typer.Option(
+    min=0, help="Centres the fallback's sampler adds on each region's thin parts, where a handle is "
+                "(sim/fallback.py); 0 reproduces runs from before 2026-12-07, session 43.")]
 FineCollisionOpt = Annotated[bool, typer.Option(
     "--fine-collision/--shipped-collision",
     help="Objects whose shipped convex hulls fill an opening (a mug's mouth) collide through finer meshes "
@@ -216,10 +219,12 @@ def pick_pipeline(
     grasp: str, rois: str, threads: int, gripper: str, wrist_look: bool, clearance: bool, fine_collision: bool,
     landing_check: bool, relocate: bool, refine_grasps: bool, grasp_fallback: bool, *, prefer_clear: bool = False,
     grasp_checks: bool = True, max_grasps: int = 5, active_look: bool = False, in_view: bool = True,
+    fallback_thin_centres: int | None = None,
 ) -> tuple[EnvConfig, PipelineConfig]:
     """The env and pipeline behind the sim commands' shared options (``eval sim``, ``eval
     pickability``, ``sim demo``), built one way; an invalid choice (an unknown gripper, grasp
-    source or ROI source) exits 2 with the message."""
+    source or ROI source) exits 2 with the message. ``fallback_thin_centres`` None: the
+    fallback's default."""
     from ..sim.active_look import ActiveLookConfig
     from ..sim.episode import sim_configs
     from ..sim.fallback import FallbackConfig
@@ -232,7 +237,8 @@ def pick_pipeline(
         config = PipelineConfig(grasp=grasp, rois=rois, fit_filter=grasp_checks,  # type: ignore[arg-type]
                                 ik_filter=grasp_checks, torch_threads=threads, max_grasps=max_grasps,
                                 pick=pick, fingers=fingers, refine=RefineConfig(enabled=refine_grasps),
-                                fallback=FallbackConfig(enabled=grasp_fallback),
+                                fallback=FallbackConfig(enabled=grasp_fallback) if fallback_thin_centres is None
+                                else FallbackConfig(enabled=grasp_fallback, thin_centres=fallback_thin_centres),
                                 active_look=ActiveLookConfig(enabled=active_look))
     except ValueError as exc:
         fail(str(exc))

@@ -27,6 +27,7 @@ def eval_pickability(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     grasp_fallback: ep.GraspFallbackOpt = True,
+    fallback_thin_centres: ep.FallbackThinCentresOpt = 32,
     clearance: ep.ClearanceOpt = False,
     relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
@@ -45,7 +46,8 @@ def eval_pickability(
         fail("--grasp oracle uses the simulator's ground truth: pickability measures the robot's own grasps; "
              "choose grconvnet, ggcnn, ggcnn2 or antipodal")
     env_config, config = ep.pick_pipeline(grasp, "predicted", threads, gripper, wrist_look, clearance,
-                                          fine_collision, landing_check, relocate, refine_grasps, grasp_fallback)
+                                          fine_collision, landing_check, relocate, refine_grasps, grasp_fallback,
+                                          fallback_thin_centres=fallback_thin_centres)
     try:
         chosen = check_assets(assets or ())
     except UnknownAssetError as exc:

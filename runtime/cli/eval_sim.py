@@ -44,6 +44,7 @@ def eval_sim(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     grasp_fallback: ep.GraspFallbackOpt = True,
+    fallback_thin_centres: ep.FallbackThinCentresOpt = 32,
     clearance: ep.ClearanceOpt = False,
     relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
@@ -71,7 +72,8 @@ def eval_sim(
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
                                           prefer_clear=prefer_clear, grasp_checks=grasp_checks,
-                                          max_grasps=max_grasps, active_look=active_look, in_view=in_view)
+                                          max_grasps=max_grasps, active_look=active_look, in_view=in_view,
+                                          fallback_thin_centres=fallback_thin_centres)
     specs = ep.scene_methods(methods, kb, kb_dir, beta, gamma)
     ep.check_classifier(classifier)
     from ..evaluation.methods import NoMethodToRunError

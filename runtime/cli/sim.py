@@ -39,6 +39,7 @@ def demo(
     wrist_look: ep.WristLookOpt = True,
     refine_grasps: ep.RefineGraspsOpt = True,
     grasp_fallback: ep.GraspFallbackOpt = True,
+    fallback_thin_centres: ep.FallbackThinCentresOpt = 32,
     clearance: ep.ClearanceOpt = False,
     relocate: ep.RelocateOpt = True,
     fine_collision: ep.FineCollisionOpt = True,
@@ -79,7 +80,8 @@ def demo(
 
     env_config, config = ep.pick_pipeline(grasp, rois, threads, gripper, wrist_look, clearance, fine_collision,
                                           landing_check, relocate, refine_grasps, grasp_fallback,
-                                          active_look=active_look, in_view=in_view)
+                                          active_look=active_look, in_view=in_view,
+                                          fallback_thin_centres=fallback_thin_centres)
     all_labels = ep.check_labels(labels or SIM_DEV_LABELS)
     name = normalize_verb_name(verb)
     pairs = [p for p in all_labels.pairs if p.verb == name]

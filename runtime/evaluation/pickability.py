@@ -242,6 +242,7 @@ def evaluate_pickability(
         "pipeline": cfg.to_dict(), "gripper": env_cfg.gripper.hand, "max_span_m": round(cfg.fingers.max_span, 6),
         "fine_collision": env_cfg.physics.fine_collision, "wrist_look": cfg.pick.wrist.enabled,
         "relocate": cfg.pick.clearance.relocate, "table_clearance_m": cfg.pick.table_clearance,
-        "clearance_margin_m": cfg.pick.clearance.margin, "image_encoder": enc.id, "footprints_cm": footprints,
+        "clearance_margin_m": cfg.pick.clearance.margin, "gentle_below_m": cfg.pick.gentle_below,
+        "image_encoder": enc.id, "footprints_cm": footprints,
     }
     return PickabilityReport(records, config_out)

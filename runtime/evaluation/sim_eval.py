@@ -648,4 +648,6 @@ def evaluate_sim(
     # results file says which it was measured at
     config_out["table_clearance_m"] = cfg.pick.table_clearance
     config_out["clearance_margin_m"] = cfg.pick.clearance.margin
+    # the gentle grip's size limit (None: the full force for every object, as before session 41)
+    config_out["gentle_below_m"] = cfg.pick.gentle_below
     return SimReport(results, skipped, records, config_out)

@@ -9,7 +9,10 @@ normals oppose each other within the friction cone. All three are checkable on o
 Procedure, vectorised over all candidates:
 
 1. Centres: mask pixels drawn with weight ∝ (distance to the mask border)², so they concentrate on
-   the medial axis (seeded, deterministic), plus the innermost pixel.
+   the medial axis (seeded, deterministic), plus the innermost pixel; optionally
+   (``n_thin_centres``) more drawn on the ridge of the region's *thin parts*, where the border
+   distance peaks across the part and the part fits the opening: a handle on a wide body holds so
+   few of the region's deep pixels that the first draw almost never lands on it.
 2. Angles: perpendicular to the *local* principal axis of the mask around the centre (PCA in a
    window the size of the gripper), ± 15° and 30°, plus a coarse sweep for round/blobby shapes.
 3. For each (centre, angle): march along the closing axis on three parallel lines spanning the
@@ -55,6 +58,9 @@ class AntipodalConfig:
     min_free_fraction: float = 0.95  # tolerate a few noisy depth pixels in a finger zone
     friction_coef: float = 0.5
     n_centres: int = 64
+    # extra centres on the ridge of the region's parts narrow enough for the opening (``_thin_ridge``),
+    # drawn after the others so that those stay as they were; 0: none (the sampler's default)
+    n_thin_centres: int = 0
     angle_offsets_deg: tuple[float, ...] = (0.0, -15.0, 15.0, -30.0, 30.0)
     sweep_step_deg: float = 30.0
     min_separation_m: float = 0.015  # non-maximum suppression radius between grasp centres
@@ -175,10 +181,21 @@ def _points(
     return xs, ys
 
 
+def _thin_ridge(dist: Float64Array, max_half_width_px: float) -> BoolArray:
+    """Pixels on the ridge of the border distance (no neighbour deeper by half a pixel or more:
+    the middle of a part, across it) where the part is at most ``max_half_width_px`` deep and at
+    least 2 pixels (not a ragged edge): the middles of the region's thin parts. A wide body's
+    ridge is deeper than the opening, so it is left out, and a handle's is kept."""
+    ridge = dist >= ndimage.maximum_filter(dist, size=3) - 0.5
+    thin: BoolArray = ridge & (dist >= 2.0) & (dist <= max_half_width_px)
+    return thin
+
+
 def _candidate_centres(
-    region: BoolArray, cfg: AntipodalConfig, rng: np.random.Generator
+    region: BoolArray, cfg: AntipodalConfig, rng: np.random.Generator, max_half_width_px: float = 0.0,
 ) -> npt.NDArray[np.intp]:
-    """``[Nc, 2]`` (row, col): the innermost pixel plus pixels drawn ∝ (border distance)²."""
+    """``[Nc, 2]`` (row, col): the innermost pixel plus pixels drawn ∝ (border distance)², then
+    (``cfg.n_thin_centres``) pixels drawn evenly from the thin parts' ridge (``_thin_ridge``)."""
     dist = ndimage.distance_transform_edt(region)  # [H, W]
     pix = np.argwhere(region)  # [P, 2]
     weights = dist[region].astype(np.float64) ** 2
@@ -186,7 +203,12 @@ def _candidate_centres(
         len(pix), size=min(cfg.n_centres, len(pix)), replace=False, p=weights / weights.sum()
     )
     innermost = np.array(np.unravel_index(int(np.argmax(dist)), dist.shape), dtype=np.intp)
-    return np.vstack([innermost[None], pix[pick]])
+    centres = [innermost[None], pix[pick]]
+    if cfg.n_thin_centres > 0:
+        thin = np.argwhere(_thin_ridge(np.asarray(dist, dtype=np.float64), max_half_width_px))
+        if len(thin):
+            centres.append(thin[rng.choice(len(thin), size=min(cfg.n_thin_centres, len(thin)), replace=False)])
+    return np.vstack(centres)
 
 
 def _candidate_axes(
@@ -289,7 +311,8 @@ def sample_antipodal_grasps(
 
     # 1-2. candidate axes
     px_per_m = 0.5 * (intrinsics.fx + intrinsics.fy) / float(np.median(d[region]))
-    centres = _candidate_centres(region, cfg, np.random.default_rng(cfg.seed))
+    half_width_px = (cfg.max_opening_m / 2 - cfg.min_clearance_m) * px_per_m
+    centres = _candidate_centres(region, cfg, np.random.default_rng(cfg.seed), half_width_px)
     window = max(int(cfg.max_opening_m / 2 * px_per_m), 3)
     axes = _candidate_axes(region, d, intrinsics, centres, window, cfg)
 

@@ -21,6 +21,12 @@ grasp; on the evaluation's dice and golf-ball episodes that left all four wrong 
 the sampler's own score lets three succeed (``benchmarks/bench_pick_settings.py``,
 ``docs/results/sim_execution.md``).
 
+The sampler's centres gather where the region is deepest. A mug or a pitcher is wider than the
+hand everywhere but at its handle, and the handle, thin, held almost none of them: the region got
+no grasp (3 of sim-dev's pitcher episodes and a mug's, layout seeds 0-2). The fallback therefore
+adds ``thin_centres`` centres on the ridge of the region's parts narrow enough for the opening
+(``AntipodalConfig.n_thin_centres``).
+
 The sampler runs on a crop around the region (its box plus the open hand's half-width and
 ``margin_m``), not on the whole frame: several times cheaper, and the same grasps, shifted,
 wherever the fingers' zones stay inside the crop (``tests/test_grasp_fallback.py``).
@@ -56,12 +62,19 @@ class FallbackConfig:
     #: setting: it capped spans at 7 cm where the check allowed 7.6, and the sponge (about as wide
     #: as the opening) got no grasp (``docs/results/sim_execution.md``).
     min_clearance_m: float | None = None
+    #: the sampler's extra centres on the region's thin parts (``AntipodalConfig.n_thin_centres``):
+    #: its other centres gather where the region is deepest, so a mug's or a pitcher's handle, the
+    #: only part of them the fingers fit around, got none and the region no grasp; 0: none (the
+    #: fallback before 2026-12-07, session 43)
+    thin_centres: int = 32
 
     def __post_init__(self) -> None:
         if not 0 < self.quality_scale <= 1:
             raise ValueError(f"quality_scale {self.quality_scale}: must be in (0, 1]")
         if self.min_clearance_m is not None and not 0 <= self.min_clearance_m < 0.05:
             raise ValueError(f"min_clearance_m {self.min_clearance_m} m: must be in [0, 0.05)")
+        if self.thin_centres < 0:
+            raise ValueError(f"thin_centres {self.thin_centres}: must be >= 0 (0: none)")
 
     def clearance(self, hand_clearance: float) -> float:
         """The sampler's gap per side for a hand whose finger check leaves ``hand_clearance``."""
@@ -92,7 +105,8 @@ def fallback_grasps(
     x1, y1 = min(x + bw + pad, w), min(y + bh + pad, h)
     crop_intrinsics = CameraIntrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy,
                                        intrinsics.cx - x0, intrinsics.cy - y0)
-    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=min_clearance_m)
+    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=min_clearance_m,
+                              n_thin_centres=config.thin_centres)
     found = sample_antipodal_grasps(np.asarray(depth)[y0:y1, x0:x1], mask[y0:y1, x0:x1], crop_intrinsics,
                                     max_grasps, sampler)
     return [replace(g, center_xy=(g.center_xy[0] + x0, g.center_xy[1] + y0),

@@ -168,6 +168,7 @@ class PipelineConfig:
             "refine_grasps": self.refine.enabled,
             "grasp_fallback": self.uses_fallback,
             "fallback_clearance_m": self.fallback.clearance(self.fingers.clearance) if self.uses_fallback else None,
+            "fallback_thin_centres": self.fallback.thin_centres if self.uses_fallback else None,
             **looked,  # only when on: the default runs' records stay as published
         }
 
