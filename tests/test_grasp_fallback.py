@@ -73,7 +73,8 @@ def mug_scene(handle: bool = True) -> tuple[npt.NDArray[np.float32], npt.NDArray
 def test_a_handle_on_a_body_too_wide_for_the_hand_gets_a_grasp() -> None:
     """The sampler's centres gather where the region is deepest (the body); without the centres on
     its thin parts the handle, the only part the fingers fit around, got none (the pitcher's and a
-    mug's ``no_grasp`` on sim-dev). With them the grasps lie on the handle, across it."""
+    mug's ``no_grasp`` on sim-dev). With them the grasps lie on the handle, across it. They are
+    drawn only when the others find nothing, so a region with grasps keeps them."""
     depth, mask, box = mug_scene()
     kwargs = {"max_opening_m": 0.08, "min_clearance_m": 0.003, "max_grasps": 5}
     assert fallback_grasps(depth, mask, box, INTR, config=FallbackConfig(thin_centres=0), **kwargs) == []  # type: ignore[arg-type]
@@ -89,10 +90,34 @@ def test_a_handle_on_a_body_too_wide_for_the_hand_gets_a_grasp() -> None:
         FallbackConfig(thin_centres=-1)
 
 
+def test_the_thin_parts_are_a_last_resort() -> None:
+    """A bottle lying down, 6 cm across, with a 1.5 cm nozzle at one end: the sampler's own
+    centres find grasps across the body, and those stand. Its centres on thin parts, asked for
+    always, would move the nozzle up the list (a narrow span scores well), far from the body's mass:
+    the Windex bottle held there slipped in the carry (``craft eval pickability``, pose 1)."""
+    depth = np.full((INTR.height, INTR.width), TABLE_DEPTH, np.float32)
+    px = INTR.fx / TABLE_DEPTH
+    vv, uu = np.mgrid[0:INTR.height, 0:INTR.width]
+    cx, cy = 300, 240
+    depth[(abs(vv - cy) <= 0.03 * px) & (abs(uu - cx) <= 0.06 * px)] = TABLE_DEPTH - 0.06
+    nozzle = (abs(vv - cy) <= 0.0075 * px) & (uu > cx + 0.06 * px) & (uu <= cx + 0.10 * px)
+    depth[nozzle] = TABLE_DEPTH - 0.04
+    mask = depth < TABLE_DEPTH - 0.005
+    ys, xs = np.nonzero(mask)
+    box = (int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
+    kwargs = {"max_opening_m": 0.08, "min_clearance_m": 0.003, "max_grasps": 5}
+    shipped = fallback_grasps(depth, mask, box, INTR, config=FallbackConfig(), **kwargs)  # type: ignore[arg-type]
+    assert shipped and shipped == fallback_grasps(depth, mask, box, INTR, config=FallbackConfig(thin_centres=0), **kwargs)  # type: ignore[arg-type]
+    always = sample_antipodal_grasps(depth, mask, INTR, 5, AntipodalConfig(max_opening_m=0.08, min_clearance_m=0.003,
+                                                                          n_thin_centres=32))
+    assert always != shipped  # asked for always, they would change the grasps of a region that has some
+    on_nozzle = [i for i, g in enumerate(always) if g.center_xy[0] > cx + 0.06 * px]
+    assert on_nozzle and on_nozzle[0] < max(i for i, g in enumerate(shipped) if g.center_xy[0] > cx + 0.06 * px)
+
+
 def test_the_crop_gives_the_whole_frames_grasps() -> None:
     depth, mask, box = dice_scene(0.04, centre=(150, 120))
-    whole = sample_antipodal_grasps(depth, mask, INTR, 5,
-                                    AntipodalConfig(max_opening_m=0.08, n_thin_centres=FallbackConfig().thin_centres))
+    whole = sample_antipodal_grasps(depth, mask, INTR, 5, AntipodalConfig(max_opening_m=0.08))
     cropped = fallback_grasps(depth, mask, box, INTR, max_opening_m=0.08, min_clearance_m=0.005, max_grasps=5, config=FallbackConfig())
     assert whole and len(cropped) == len(whole)
     for c, w in zip(cropped, whole, strict=True):

@@ -23,9 +23,9 @@ the sampler's own score lets three succeed (``benchmarks/bench_pick_settings.py`
 
 The sampler's centres gather where the region is deepest. A mug or a pitcher is wider than the
 hand everywhere but at its handle, and the handle, thin, held almost none of them: the region got
-no grasp (3 of sim-dev's pitcher episodes and a mug's, layout seeds 0-2). The fallback therefore
-adds ``thin_centres`` centres on the ridge of the region's parts narrow enough for the opening
-(``AntipodalConfig.n_thin_centres``).
+no grasp (3 of sim-dev's pitcher episodes and a mug's, layout seeds 0-2). Where the sampler finds
+nothing, the fallback therefore asks it again with ``thin_centres`` more centres on the ridge of
+the region's parts narrow enough for the opening (``AntipodalConfig.n_thin_centres``).
 
 The sampler runs on a crop around the region (its box plus the open hand's half-width and
 ``margin_m``), not on the whole frame: several times cheaper, and the same grasps, shifted,
@@ -62,10 +62,12 @@ class FallbackConfig:
     #: setting: it capped spans at 7 cm where the check allowed 7.6, and the sponge (about as wide
     #: as the opening) got no grasp (``docs/results/sim_execution.md``).
     min_clearance_m: float | None = None
-    #: the sampler's extra centres on the region's thin parts (``AntipodalConfig.n_thin_centres``):
-    #: its other centres gather where the region is deepest, so a mug's or a pitcher's handle, the
-    #: only part of them the fingers fit around, got none and the region no grasp; 0: none (the
-    #: fallback before 2026-12-07, session 43)
+    #: the sampler's extra centres on the region's thin parts (``AntipodalConfig.n_thin_centres``),
+    #: drawn only when its other centres give no grasp: those gather where the region is deepest,
+    #: so a mug's or a pitcher's handle, the only part of them the fingers fit around, got none and
+    #: the region no grasp. Only then: on a region that has grasps the thin parts won on their
+    #: narrow span and a spray bottle was held by its nozzle, far from its mass, and slipped in the
+    #: carry (``docs/results/sim_execution.md``). 0: none (the fallback before 2026-12-07, session 43)
     thin_centres: int = 32
 
     def __post_init__(self) -> None:
@@ -105,9 +107,11 @@ def fallback_grasps(
     x1, y1 = min(x + bw + pad, w), min(y + bh + pad, h)
     crop_intrinsics = CameraIntrinsics(x1 - x0, y1 - y0, intrinsics.fx, intrinsics.fy,
                                        intrinsics.cx - x0, intrinsics.cy - y0)
-    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=min_clearance_m,
-                              n_thin_centres=config.thin_centres)
-    found = sample_antipodal_grasps(np.asarray(depth)[y0:y1, x0:x1], mask[y0:y1, x0:x1], crop_intrinsics,
-                                    max_grasps, sampler)
+    sampler = AntipodalConfig(max_opening_m=max_opening_m, min_clearance_m=min_clearance_m)
+    depth_crop, mask_crop = np.asarray(depth)[y0:y1, x0:x1], mask[y0:y1, x0:x1]
+    found = sample_antipodal_grasps(depth_crop, mask_crop, crop_intrinsics, max_grasps, sampler)
+    if not found and config.thin_centres > 0:  # a last resort: see ``FallbackConfig.thin_centres``
+        found = sample_antipodal_grasps(depth_crop, mask_crop, crop_intrinsics, max_grasps,
+                                        replace(sampler, n_thin_centres=config.thin_centres))
     return [replace(g, center_xy=(g.center_xy[0] + x0, g.center_xy[1] + y0),
                     quality=float(g.quality) * config.quality_scale) for g in found]
