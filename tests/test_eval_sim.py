@@ -201,9 +201,10 @@ def test_cli_writes_the_paper_table_as_json(first_run: dict[str, Any]) -> None:
     assert first_run["config"]["episodes"] == 1 and len(first_run["episodes"]) == 1
     assert first_run["episodes"][0]["target"] == "knife"
     # the pick settings the run was measured at (finger tips above the table, clearance margin,
-    # the gentle grip's size limit, the fallback's centres on thin parts)
+    # the gentle grip's size limit, the fallback's centres on thin parts, the carry's margin to the arm)
     config = first_run["config"]
     assert (config["table_clearance_m"], config["clearance_margin_m"], config["gentle_below_m"]) == (0.002, -0.002, 0.15)
+    assert config["carry_margin_m"] == 0.02
     assert config["pipeline"]["grasp_fallback"] is True
     assert config["pipeline"]["fallback_thin_centres"] == 32
 

@@ -243,6 +243,7 @@ def evaluate_pickability(
         "fine_collision": env_cfg.physics.fine_collision, "wrist_look": cfg.pick.wrist.enabled,
         "relocate": cfg.pick.clearance.relocate, "table_clearance_m": cfg.pick.table_clearance,
         "clearance_margin_m": cfg.pick.clearance.margin, "gentle_below_m": cfg.pick.gentle_below,
+        "carry_margin_m": cfg.pick.carry_margin if cfg.pick.carry_check else None,
         "image_encoder": enc.id, "footprints_cm": footprints,
     }
     return PickabilityReport(records, config_out)

@@ -650,4 +650,6 @@ def evaluate_sim(
     config_out["clearance_margin_m"] = cfg.pick.clearance.margin
     # the gentle grip's size limit (None: the full force for every object, as before session 41)
     config_out["gentle_below_m"] = cfg.pick.gentle_below
+    # the carry's check against the arm (None: off, every carry at yaw 0, as before session 44)
+    config_out["carry_margin_m"] = cfg.pick.carry_margin if cfg.pick.carry_check else None
     return SimReport(results, skipped, records, config_out)

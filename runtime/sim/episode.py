@@ -30,7 +30,7 @@ from .fingers import FingerGeometry
 from .gripper import GripperConfig
 from .hands import hand_spec
 from .robot import CR3Robot, IKSolution, tool_rotation
-from .robot_urdf import FINGERTIP_BELOW_TCP
+from .robot_urdf import FINGERTIP_BELOW_TCP, FLANGE_LINK
 from .scene import Scene, TableLayout
 from .wrist import WristConfig, look, recentre
 
@@ -88,6 +88,15 @@ class PickConfig:
     # session 30).
     unjam_turn_deg: float = 20.0
     unjam_rise: float = 0.02
+    # The held object must stay ``carry_margin`` clear of the arm's links on the way to the zone
+    # (``_carry_hit``: the object's seen surface, carried with the hand, against the links' hulls).
+    # Where the release at yaw 0 would sweep it into the arm, the hand carries it turned as the
+    # arm turns about its base (the wrist still), else a quarter turn; if every way touches, the
+    # yaw-0 carry, as before. Why: the zone lies beside the base, and at yaw 0 a long object's far
+    # end swung into the upper arm (``Link2``), which knocked a 30 cm spatula out of the hand
+    # (sim-dev ``stir/spatula/2`` at seed 2). False: every carry at yaw 0 (before session 44).
+    carry_check: bool = True
+    carry_margin: float = 0.02
     wrist: WristConfig = field(default_factory=WristConfig)
     clearance: ClearanceConfig = field(default_factory=ClearanceConfig)  # robot-side, see plan_pick
     # Lift high enough to carry the object over the tallest surface in the overhead depth
@@ -106,6 +115,8 @@ class PickConfig:
             raise ValueError(f"PickConfig.unjam_turn_deg {self.unjam_turn_deg} must be in [0, 90) degrees (0: off)")
         if self.unjam_rise <= 0.0:
             raise ValueError(f"PickConfig.unjam_rise {self.unjam_rise} m must be > 0")
+        if self.carry_margin < 0.0:
+            raise ValueError(f"PickConfig.carry_margin {self.carry_margin} m must be >= 0")
 
 
 def in_view_layout(whole_in_view: bool = True) -> TableLayout:
@@ -165,6 +176,8 @@ class _Plan:
     # the hand's lean at the release (a leaned grasp's, ``tool_quat``, named for the drop yaw's
     # closing axis): the retreat after the release keeps it
     lean: float = 0.0
+    # what the carry check did, when it found the yaw-0 carry too close to the arm (else "")
+    carry: str = ""
 
 
 def _all_ok(robot: CR3Robot, solutions: list[IKSolution]) -> bool:
@@ -213,12 +226,13 @@ class _Approach:
 
 def _plan(
     robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig, rise: float = 0.0,
-    object_xy: tuple[float, float] | None = None,
+    object_xy: tuple[float, float] | None = None, object_points: npt.NDArray[np.float64] | None = None,
 ) -> _Plan | str:
     """All waypoints of the pick, or a string saying which one is unreachable: the approach
     (``_approach``), then the rest (``_complete``)."""
     approach = _approach(robot, scene, grasp, cfg)
-    return approach if isinstance(approach, str) else _complete(robot, scene, approach, cfg, rise, object_xy)
+    return approach if isinstance(approach, str) else _complete(robot, scene, approach, cfg, rise, object_xy,
+                                                                 object_points)
 
 
 def _approach(robot: CR3Robot, scene: Scene, grasp: TopDownGrasp, cfg: PickConfig) -> _Approach | str:
@@ -262,7 +276,7 @@ def _wrapped_by_pi(angle: float) -> bool:
 
 def _complete(
     robot: CR3Robot, scene: Scene, approach: _Approach, cfg: PickConfig, rise: float = 0.0,
-    object_xy: tuple[float, float] | None = None,
+    object_xy: tuple[float, float] | None = None, object_points: npt.NDArray[np.float64] | None = None,
 ) -> _Plan | str:
     """The lift, transport and release after ``approach``, or which one is unreachable.
 
@@ -271,6 +285,10 @@ def _complete(
     ``plan_pick`` answers the same with or without ``rise``. With ``object_xy`` (the object's
     centre as seen) the release puts that centre over the zone when reachable
     (``release_spots``), else the TCP over the zone as without it: feasibility is unchanged.
+    With ``object_points`` (the object's seen surface, world ``[n, 3]``) and
+    ``PickConfig.carry_check``, a yaw-0 carry that would sweep the object into the arm is
+    replaced by the first other way (``carry_yaws``) that keeps it clear; feasibility is that of
+    the yaw-0 release, so ``plan_pick`` (which has no points) answers as before.
     """
     x, y, yaw, grasp_z, descent = approach.x, approach.y, approach.yaw, approach.grasp_z, approach.descent
     lean = approach.lean
@@ -289,16 +307,83 @@ def _complete(
     if not found:
         return f"no reachable lift of {cfg.lift_height} m above ({x:.3f}, {y:.3f})"
     lift_end = robot.forward(lift[-1].q).position
-    drop_yaw = robot.nearest_yaw(0.0, yaw)
-    drop_lean = lean if not _wrapped_by_pi(drop_yaw - yaw) else -lean
     release_z = grasp_z + cfg.release_clearance
+    held = (None if object_points is None or not cfg.carry_check or not len(object_points)
+            else _in_tcp_frame(robot, descent[-1].q, object_points, scene.layout.table_z))
     why = ""
-    for drop_x, drop_y in release_spots(scene.layout.drop_zone.center, (x, y), yaw, drop_yaw, object_xy):
-        placed = _place(robot, lift, float(lift_end[2]), (drop_x, drop_y), drop_yaw, release_z, cfg, drop_lean)
-        if not isinstance(placed, str):
-            return _Plan(approach.pre, descent, lift, placed[0], placed[1], grasp_z, drop_lean)
-        why = placed
+    first: _Plan | None = None
+    hit = ""
+    for preferred in carry_yaws((x, y), yaw, scene.layout.drop_zone.center,
+                                (float(robot.base_position[0]), float(robot.base_position[1])))[: 1 if held is None else None]:
+        drop_yaw = robot.nearest_yaw(preferred, yaw)
+        drop_lean = lean if not _wrapped_by_pi(drop_yaw - yaw) else -lean
+        for drop_x, drop_y in release_spots(scene.layout.drop_zone.center, (x, y), yaw, drop_yaw, object_xy):
+            placed = _place(robot, lift, float(lift_end[2]), (drop_x, drop_y), drop_yaw, release_z, cfg, drop_lean)
+            if isinstance(placed, str):
+                why = placed
+                continue
+            plan = _Plan(approach.pre, descent, lift, placed[0], placed[1], grasp_z, drop_lean)
+            touched = None if held is None else _carry_hit(robot, plan, held, cfg)
+            if touched is None:
+                if first is None:
+                    return plan
+                return dataclasses.replace(plan, carry=(
+                    f"the carry turned the hand to {math.degrees(math.remainder(drop_yaw, math.pi)):+.0f}°: at 0° "
+                    f"the object would come within {100 * cfg.carry_margin:.0f} cm of the arm ({hit})"))
+            first, hit = first or plan, hit or touched
+            break  # this yaw's carry comes too close to the arm: the next yaw
+        if first is None:  # the yaw-0 release is out of reach: no other, as before
+            break
+    if first is not None:
+        return dataclasses.replace(first, carry=f"every carry would bring the object within "
+                                                f"{100 * cfg.carry_margin:.0f} cm of the arm ({hit}); carried at 0°")
     return why
+
+
+def carry_yaws(grasp_xy: tuple[float, float], grasp_yaw: float, zone_xy: tuple[float, float],
+               base_xy: tuple[float, float] = (0.0, 0.0)) -> list[float]:
+    """The closing axis's yaws to carry an object to the zone with, in the order to try: 0 (the
+    release of every run before session 44), then the grasp's yaw turned as far as the arm turns
+    about its base from the grasp to the zone (the wrist still: the object keeps its place
+    beside the arm, where it was clear of it at the grasp), then a quarter turn."""
+    turn = math.atan2(zone_xy[1] - base_xy[1], zone_xy[0] - base_xy[0]) - math.atan2(
+        grasp_xy[1] - base_xy[1], grasp_xy[0] - base_xy[0])
+    return [0.0, grasp_yaw + turn, math.pi / 2]
+
+
+def _in_tcp_frame(robot: CR3Robot, q: npt.NDArray[np.float64], points: npt.NDArray[np.float64],
+                  table_z: float) -> npt.NDArray[np.float64]:
+    """The seen surface ``points`` (world) and their feet on the table, in the frame of the TCP
+    at joint angles ``q`` (the grasp): what moves with the hand once the object is held. The
+    feet stand for the sides the overhead camera does not see."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    feet = pts.copy()
+    feet[:, 2] = table_z
+    tcp = robot.forward(q)
+    local: npt.NDArray[np.float64] = (np.concatenate([pts, feet]) - tcp.position) @ tcp.rotation
+    return local
+
+
+#: The arm link the hand is mounted on: what the hand holds never moves relative to it, so the
+#: carry cannot bring the object closer to it than the grasp did (the check skips it).
+RIGID_WITH_HAND = frozenset({FLANGE_LINK})
+
+
+def _carry_hit(robot: CR3Robot, plan: _Plan, held: npt.NDArray[np.float64], cfg: PickConfig) -> str | None:
+    """The first arm link the held object (``held``, TCP frame) comes within
+    ``cfg.carry_margin`` of at a waypoint of the carry (transport, then lowering), or None."""
+    from scipy.spatial import cKDTree
+
+    links = tuple(link for link in cfg.clearance.arm_links if link not in RIGID_WITH_HAND)
+    hulls = link_hulls(robot.urdf_path, links, cfg.clearance.arm_spacing)
+    for step in [*plan.transport, *plan.lower]:
+        tcp, frames = robot.forward_and_frames(step.q)
+        world = held @ tcp.rotation.T + tcp.position
+        tree = cKDTree(world)
+        for hull, points in zip(hulls, hull_points_world(hulls, frames, robot.base_position), strict=True):
+            if tree.query(points, k=1, distance_upper_bound=cfg.carry_margin)[0].min() <= cfg.carry_margin:
+                return hull.link
+    return None
 
 
 def _place(
@@ -496,13 +581,17 @@ def execute_pick(
     config: PickConfig | None = None,
     object_xy: tuple[float, float] | None = None,
     object_size: float | None = None,
+    object_points: npt.NDArray[np.float64] | None = None,
 ) -> PickResult:
     """Run the pick in ``env``'s current scene and classify what happened.
 
     ``object_xy``: the object's centre on the table as the robot saw it (``object_centre``);
     given, the release puts it, not the TCP, over the drop zone's centre when reachable.
     ``object_size``: the object's longest edge as the robot saw it (m); under
-    ``PickConfig.gentle_below``, the hand closes gently (``HandSpec.gentle_force``)."""
+    ``PickConfig.gentle_below``, the hand closes gently (``HandSpec.gentle_force``).
+    ``object_points``: the object's surface as the robot saw it (world ``[n, 3]``,
+    ``surface.object_points``); given, the carry keeps it clear of the arm
+    (``PickConfig.carry_check``)."""
     cfg = config or PickConfig()
     robot, scene = env.robot, env.scene
     progress = _Progress(env, target_body, env.steps, _body_z(scene, target_body))
@@ -510,13 +599,13 @@ def execute_pick(
     if grasp is None:
         return progress.finish(Outcome.NO_GRASP, None, "no grasp candidate")
     rise = _clearing_rise(env, cfg)
-    plan = _plan(robot, scene, grasp, cfg, rise, object_xy)
+    plan = _plan(robot, scene, grasp, cfg, rise, object_xy, object_points)
     if isinstance(plan, str):
         return progress.finish(Outcome.IK_FAILURE, None, plan)
 
     robot.gripper.open()
     robot.follow([plan.pre.q])
-    plan = _look_and_replan(env, grasp, plan, cfg, progress, rise, object_xy)
+    plan = _look_and_replan(env, grasp, plan, cfg, progress, rise, object_xy, object_points)
     robot.follow([s.q for s in plan.descent])
     progress.measure_descent(plan.grasp_z)
     robot.gripper.close(gentle=cfg.gentle_below is not None and object_size is not None
@@ -550,7 +639,8 @@ def execute_pick(
     if carried:
         carried = robot.follow([s.q for s in plan.lower], monitor=in_hand)
     if not carried:
-        return progress.finish(Outcome.SLIP_DURING_TRANSPORT, None, "target lost during transport")
+        return progress.finish(Outcome.SLIP_DURING_TRANSPORT, None,
+                               "; ".join(filter(None, ("target lost during transport", plan.carry))))
     robot.gripper.open()
     released_z = _body_z(scene, target_body)
     release = robot.forward(plan.lower[-1].q).position
@@ -567,10 +657,11 @@ def execute_pick(
 
     in_zone = _in_drop_zone(scene, target_body)
     outside = "target came to rest outside the drop zone"
+    detail = wedged if in_zone else (f"{outside} ({wedged})" if wedged else outside)
     return progress.finish(
         Outcome.SUCCESS if in_zone else Outcome.OUTSIDE_DROP_ZONE,
         target_body,
-        wedged if in_zone else (f"{outside} ({wedged})" if wedged else outside),
+        "; ".join(filter(None, (detail, plan.carry))),
     )
 
 
@@ -623,6 +714,7 @@ def _clearing_rise(env: SimEnv, cfg: PickConfig) -> float:
 def _look_and_replan(
     env: SimEnv, grasp: TopDownGrasp, plan: _Plan, cfg: PickConfig, progress: _Progress,
     rise: float, object_xy: tuple[float, float] | None = None,
+    object_points: npt.NDArray[np.float64] | None = None,
 ) -> _Plan:
     """At pre-grasp: one wrist depth frame, re-centre the grasp, re-plan the rest of the pick.
 
@@ -639,7 +731,7 @@ def _look_and_replan(
     correction = recentre(obs, grasp, tip_z, scene.layout.table_z, cfg.wrist)
     if correction.shift == 0.0:
         return plan
-    replanned = _plan(robot, scene, correction.grasp, cfg, rise, object_xy)
+    replanned = _plan(robot, scene, correction.grasp, cfg, rise, object_xy, object_points)
     if isinstance(replanned, str):
         return plan
     robot.follow([replanned.pre.q])

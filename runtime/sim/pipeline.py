@@ -86,7 +86,7 @@ from .refine import RefineConfig
 from .relocate import RelocateConfig, relocate_if_blocked
 from .retry import Attempt, RetryConfig, hand_empty, return_home, same_grasp
 from .scene import SceneSpec
-from .surface import RaisedPoints, object_centre
+from .surface import RaisedPoints, object_centre, object_points
 
 FloatArray = npt.NDArray[np.float64]
 BoolMask = npt.NDArray[np.bool_]
@@ -345,6 +345,7 @@ def run_episode(
                 picks[chosen.index] = execute_pick(
                     env, grasp.pose if grasp is not None else None, perception.target_body, cfg.pick,
                     object_centre(perception.raised, roi.roi.mask), longest_edge(roi),
+                    object_points(perception.raised, roi.roi.mask),
                 )
                 if retrying and hand_empty(picks[chosen.index]):
                     after_pick[chosen.index] = int(p.saveState(physicsClientId=env.client))
@@ -447,7 +448,8 @@ def retry_picks(
             break
         pose = grasp.pose if grasp is not None else None
         pick = execute_pick(env, pose, perception.target_body, config.pick,
-                            object_centre(perception.raised, roi.roi.mask), longest_edge(roi))
+                            object_centre(perception.raised, roi.roi.mask), longest_edge(roi),
+                            object_points(perception.raised, roi.roi.mask))
         quality = grasp.quality if grasp is not None else None
         attempts.append(Attempt(chosen.index, True, PICK_FAILURES[pick.outcome].value, pick.detail, quality))
         if not hand_empty(pick) or pose is None:

@@ -12,6 +12,7 @@ reads the same numbers as before, in the same row-major order as ``world[pixels 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,3 +62,21 @@ def object_centre(raised: RaisedPoints, mask: BoolMask) -> tuple[float, float] |
     if not len(points):
         return None
     return float(points[:, 0].mean()), float(points[:, 1].mean())
+
+
+#: At most this many of an object's seen points stand for it in the carry check
+#: (``episode._carry_hit``): every n-th, row-major, so a large object costs no more than a small.
+HELD_POINTS = 256
+
+
+def object_points(raised: RaisedPoints, mask: BoolMask, limit: int = HELD_POINTS) -> FloatArray | None:
+    """The seen surface of the object under ``mask``: at most ``limit`` of its raised world
+    points ``[n, 3]``, evenly strided (None without any). What the carry keeps clear of the arm
+    once the object is in the hand (``episode.execute_pick``)."""
+    if limit < 1:
+        raise ValueError(f"limit must be >= 1, got {limit}")
+    points = raised.within(mask)
+    if not len(points):
+        return None
+    out: FloatArray = points[:: max(1, math.ceil(len(points) / limit))]
+    return out
